@@ -1,0 +1,8 @@
+//! Hardware abstraction: the [`link::Link`] trait and its transports (UDP, serial, SocketCAN),
+//! an in-memory CAN bus, and the [`emulator`] for bandwidth-capped, lossy, delayed links.
+
+pub mod can;
+pub mod emulator;
+pub mod link;
+pub mod serial;
+pub mod udp;

@@ -1,0 +1,1 @@
+//! Delivery (filled below).
