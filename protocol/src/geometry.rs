@@ -19,10 +19,7 @@ pub struct Pose3 {
 }
 
 impl Pose3 {
-    pub const IDENTITY: Pose3 = Pose3 {
-        translation_m: [0.0; 3],
-        rotation_wxyz: [1.0, 0.0, 0.0, 0.0],
-    };
+    pub const IDENTITY: Pose3 = Pose3 { translation_m: [0.0; 3], rotation_wxyz: [1.0, 0.0, 0.0, 0.0] };
 
     /// Whether every component is finite and the quaternion has unit norm within `1e-6`.
     /// Decoders accept any bytes; consumers call this before using a pose.
@@ -58,14 +55,15 @@ impl Cov6 {
     }
 
     /// Unpacks into a full row-major symmetric matrix.
+    #[allow(clippy::needless_range_loop, reason = "each entry is written to (r, c) and (c, r)")]
     pub fn to_full(&self) -> [[f64; 6]; 6] {
         let mut full = [[0.0f64; 6]; 6];
-        let mut k = 0;
+        let mut entries = self.upper.iter();
         for r in 0..6 {
             for c in r..6 {
-                full[r][c] = f64::from(self.upper[k]);
-                full[c][r] = full[r][c];
-                k += 1;
+                let value = entries.next().copied().map_or(0.0, f64::from);
+                full[r][c] = value;
+                full[c][r] = value;
             }
         }
         full
@@ -94,12 +92,8 @@ mod tests {
 
     #[test]
     fn covariance_packing_round_trips_symmetric_matrices() {
-        let mut full = [[0.0f64; 6]; 6];
-        for r in 0..6 {
-            for c in 0..6 {
-                full[r][c] = (r.min(c) * 10 + r.max(c)) as f64 + 1.0;
-            }
-        }
+        let full: [[f64; 6]; 6] =
+            core::array::from_fn(|r| core::array::from_fn(|c| (r.min(c) * 10 + r.max(c)) as f64 + 1.0));
         assert_eq!(Cov6::from_full(&full).to_full(), full);
     }
 

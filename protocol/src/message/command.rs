@@ -22,11 +22,24 @@ pub enum CommandKind {
     SetMode(Mode),
     /// Drive to a point given in the target robot's own global frame (every robot has its own;
     /// there is no shared one).
-    GoToWaypoint { x_m: f64, y_m: f64, z_m: f64, speed_mps: f32 },
-    SetParameter { name: ParamName, value: ParamValue },
+    GoToWaypoint {
+        x_m: f64,
+        y_m: f64,
+        z_m: f64,
+        speed_mps: f32,
+    },
+    SetParameter {
+        name: ParamName,
+        value: ParamValue,
+    },
     /// Send a submap again, whole or a chunk range `[first, last]`.
-    RequestResend { submap: SubmapId, chunks: Option<(u16, u16)> },
-    StartRecording { label: String<32> },
+    RequestResend {
+        submap: SubmapId,
+        chunks: Option<(u16, u16)>,
+    },
+    StartRecording {
+        label: String<32>,
+    },
     StopRecording,
 }
 

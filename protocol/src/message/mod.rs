@@ -52,8 +52,14 @@ pub enum Priority {
 
 impl Priority {
     pub const COUNT: usize = 6;
-    pub const ALL: [Priority; Self::COUNT] =
-        [Priority::Control, Priority::Command, Priority::Constraint, Priority::State, Priority::Telemetry, Priority::Bulk];
+    pub const ALL: [Priority; Self::COUNT] = [
+        Priority::Control,
+        Priority::Command,
+        Priority::Constraint,
+        Priority::State,
+        Priority::Telemetry,
+        Priority::Bulk,
+    ];
 
     /// The channel number of this priority (its index in [`Priority::ALL`]).
     pub fn channel(self) -> u8 {
@@ -162,6 +168,12 @@ macro_rules! messages {
                     )*
                     other => Err(DecodeError::UnknownKey(other)),
                 }
+            }
+
+            /// Priority of the type with this key, if the key is known: lets a link pick a CAN id
+            /// from the header alone, without decoding the body.
+            pub fn priority_of(key: MessageKey) -> Option<Priority> {
+                match key.0 { $( $key => Some(Priority::$prio), )* _ => None }
             }
 
             /// Name of the type with this key, if the key is known.
