@@ -3,6 +3,7 @@
 
 pub mod can;
 pub mod emulator;
+pub mod keyfile;
 pub mod link;
 pub mod serial;
 pub mod udp;
