@@ -6,6 +6,21 @@
 //! - [`auth`]: HMAC-SHA256 command authentication with replay protection;
 //! - [`frame`]: framing for byte streams (COBS + CRC-32), CAN (ISO-TP-like) and UDP datagrams;
 //! - [`delivery`]: reliable and latest-wins delivery, priorities and a token-bucket rate cap.
+//!
+//! ```
+//! use protocol::message::{AnyMessage, CommandAck, CommandOutcome};
+//! use protocol::{MAX_PACKET_BYTES, NodeId, RobotId, decode, encode};
+//!
+//! let ack = AnyMessage::from(CommandAck { robot: RobotId(2), command_id: 7, outcome: CommandOutcome::Executed });
+//! let mut buf = [0u8; MAX_PACKET_BYTES];
+//! let len = encode(&ack, NodeId(2), NodeId::GROUND, 0, &mut buf)?;
+//! let packet = decode(&buf[..len])?;
+//! assert_eq!(packet.message, ack);
+//! assert_eq!(packet.header.destination, NodeId::GROUND);
+//! // Any other bytes give a typed error, never a panic.
+//! assert!(decode(&buf[..len - 1]).is_err());
+//! # Ok::<(), Box<dyn core::error::Error>>(())
+//! ```
 #![no_std]
 
 pub mod auth;
