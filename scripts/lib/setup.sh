@@ -18,3 +18,27 @@ ensure_system_packages() {
         DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
     fi
 }
+
+# The Python venv of the OpenCV comparison (fpga_model/scripts/opencv_sgbm.py, used by
+# fpga_model's tests/middlebury.rs and benches/vs_opencv.rs): `.venv` at the project root
+# (gitignored) with the exact pins of fpga_model/scripts/requirements.txt. A stamp holding the
+# requirements' hash makes a second run install nothing, and a change of pins reinstall.
+PYTHON_REQUIREMENTS=fpga_model/scripts/requirements.txt
+
+ensure_python_venv() {
+    local venv=.venv
+    local stamp="$venv/.requirements.sha256"
+    local want
+    want=$(sha256sum "$PYTHON_REQUIREMENTS" | cut -d' ' -f1)
+    if [[ -x "$venv/bin/python" && -f "$stamp" && "$(cat "$stamp")" == "$want" ]]; then
+        return 0
+    fi
+    echo "setup: creating the Python venv $venv from $PYTHON_REQUIREMENTS"
+    if [[ ! -x "$venv/bin/python" ]]; then
+        python3 -m venv "$venv"
+    fi
+    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PYTHON_REQUIREMENTS"
+    # Fail here, not deep inside a test, if the wheels do not import on this machine.
+    "$venv/bin/python" -c "import cv2, numpy"
+    echo "$want" >"$stamp"
+}
