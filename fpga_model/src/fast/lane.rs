@@ -1,0 +1,88 @@
+//! The element type of the path-cost vectors.
+//!
+//! A stored path cost `L_r` is at most `min(Lmax, 64 + 255)` (a matching cost plus the largest
+//! smoothness step `P2eff ≤ 255`), so for `b ≤ 8` it fits a byte and the aggregation runs on
+//! `u8` lanes: twice the disparities per SIMD instruction of `u16` lanes. Saturating byte
+//! arithmetic gives exactly the wide-integer results of `SPEC.md` there:
+//!
+//! - `L(d ± 1) + p1` and `M + P2eff` are only ever compared against `L(d) ≤ 255`, so clipping
+//!   them at 255 never changes the minimum `best`;
+//! - `best − M` is exact (`best ≥ M`), and `C + (best − M)` clipped at 255 is then clipped again
+//!   at `Lmax ≤ 255`, which is what the spec stores.
+//!
+//! For `b ≥ 9` the lanes are `u16`, where nothing saturates below `Lmax ≤ 4095`.
+
+/// A path-cost lane: `u8` for `path_cost_bits ≤ 8`, `u16` above.
+pub(crate) trait Lane: Copy + Ord + Default + Send + Sync + std::fmt::Debug + 'static {
+    /// The largest value; also the cost of the padding disparities `D ..` of a SIMD block.
+    const MAX: Self;
+    /// Lanes of one aggregation block: a full 512-bit register of this type.
+    const BLOCK: usize;
+    /// Converts a value known to fit (callers clamp first).
+    fn from_u16(value: u16) -> Self;
+    fn from_u8(value: u8) -> Self;
+    fn saturating_add(self, other: Self) -> Self;
+    /// `self − other` for `self ≥ other`.
+    fn minus(self, other: Self) -> Self;
+    fn widen(self) -> u16;
+}
+
+impl Lane for u8 {
+    const MAX: Self = u8::MAX;
+    const BLOCK: usize = 64;
+
+    #[inline(always)]
+    fn from_u16(value: u16) -> Self {
+        value.min(255) as u8
+    }
+
+    #[inline(always)]
+    fn from_u8(value: u8) -> Self {
+        value
+    }
+
+    #[inline(always)]
+    fn saturating_add(self, other: Self) -> Self {
+        u8::saturating_add(self, other)
+    }
+
+    #[inline(always)]
+    fn minus(self, other: Self) -> Self {
+        self.wrapping_sub(other)
+    }
+
+    #[inline(always)]
+    fn widen(self) -> u16 {
+        u16::from(self)
+    }
+}
+
+impl Lane for u16 {
+    const MAX: Self = u16::MAX;
+    const BLOCK: usize = 32;
+
+    #[inline(always)]
+    fn from_u16(value: u16) -> Self {
+        value
+    }
+
+    #[inline(always)]
+    fn from_u8(value: u8) -> Self {
+        u16::from(value)
+    }
+
+    #[inline(always)]
+    fn saturating_add(self, other: Self) -> Self {
+        u16::saturating_add(self, other)
+    }
+
+    #[inline(always)]
+    fn minus(self, other: Self) -> Self {
+        self.wrapping_sub(other)
+    }
+
+    #[inline(always)]
+    fn widen(self) -> u16 {
+        self
+    }
+}

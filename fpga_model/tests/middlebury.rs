@@ -1,0 +1,48 @@
+//! Accuracy on the Middlebury scenes (bad-pixel rate, non-occluded pixels, 1 px), of exactly
+//! what the CLI outputs by default, against regression thresholds.
+//!
+//! Run with `--nocapture` to see the tables (BENCHMARKS.md quotes them).
+
+#![allow(clippy::unwrap_used, reason = "test helpers: a panic is a failed test with its message")]
+
+use fpga_model::eval::{DEFAULT_THRESHOLD_PX, Scene, default_data_root};
+use fpga_model::{SgmConfig, fast, io};
+
+/// Regression thresholds in percent: measured with the default configuration plus 0.5
+/// percentage points (so a real loss of accuracy fails, noise-free as the core is integer).
+const THRESHOLDS_PERCENT: [(&str, f64); 4] = [("tsukuba", 5.2), ("teddy", 7.9), ("cones", 5.9), ("Reindeer", 8.4)];
+
+fn scenes() -> Vec<Scene> {
+    Scene::load_all(default_data_root()).unwrap()
+}
+
+/// Our bad-pixel rate in percent with the CLI's default configuration for the scene's D.
+fn ours_percent(scene: &Scene) -> f64 {
+    let config = SgmConfig { disparities: scene.disparities, ..Default::default() };
+    let threads = std::thread::available_parallelism().map_or(1, usize::from);
+    let mut matcher = fast::Matcher::new(config, scene.left.width, scene.left.height, threads).unwrap();
+    let disparity = matcher.compute(&scene.left, &scene.right).unwrap();
+    100.0 * scene.bad_pixel_rate(&io::disparity_to_pfm_values(&disparity), DEFAULT_THRESHOLD_PX).unwrap()
+}
+
+#[test]
+fn default_config_regression() {
+    println!("\nours (default config, fast::Matcher), bad pixels nonocc > {DEFAULT_THRESHOLD_PX} px:");
+    println!("| scene | D | evaluated px | bad % | threshold % |");
+    println!("|---|---:|---:|---:|---:|");
+    let mut failures = Vec::new();
+    for scene in scenes() {
+        let ours = ours_percent(&scene);
+        let (_, threshold) = THRESHOLDS_PERCENT.iter().find(|(name, _)| *name == scene.name).copied().unwrap();
+        println!(
+            "| {} | {} | {} | {ours:.2} | {threshold:.1} |",
+            scene.name,
+            scene.disparities,
+            scene.evaluated_pixels()
+        );
+        if ours > threshold {
+            failures.push(format!("{}: {ours:.2} % > {threshold} %", scene.name));
+        }
+    }
+    assert!(failures.is_empty(), "accuracy regressed: {failures:?}");
+}
