@@ -1,18 +1,22 @@
-//! Sweep of the tunable penalties of `SgmConfig` on the four Middlebury scenes: scores every
-//! combination of P1, P2, the P2 gradient scale and the uniqueness margin with the fast matcher
-//! (bad pixels nonocc > 1 px, invalid = bad, exactly as tests/middlebury.rs scores), and prints
-//! the best uniform settings (one setting for all scenes).
+//! Sweep of the tunable parameters of `SgmConfig` on the four Middlebury scenes: scores every
+//! combination of P1, P2, the P2 gradient scale, the uniqueness margin and the gradient term of
+//! the matching cost with the fast matcher (bad pixels nonocc > 1 px, invalid = bad, exactly as
+//! tests/middlebury.rs scores), and prints the best uniform settings (one setting for all
+//! scenes).
 //!
 //! ```text
 //! cargo run --release -p fpga_model --example tune -- \
 //!     [--p1 4,6,8] [--p2 60,120] [--scale 0,16] [--uniqueness 0,5] [--paths 4|8] \
-//!     [--lr-max-diff 1,2] [--lr-check 1,0] [--census 9x7,7x7] \
+//!     [--gradient-weight 0,4] [--gradient-truncation 16,32] \
+//!     [--lr-max-diff 1,2] [--lr-lenient 1,0] [--lr-check 1,0] [--census 9x7,7x7] \
 //!     [--opencv 3.95,13.92,12.06,15.96] [--top 15]
 //! ```
-//! The last three are not among the tuned penalties (the census window and the left-right check
-//! are fixed by the hardware design); they are there to show what they cost or gain.
+//! The gradient term and the LR options default to `SgmConfig::default`'s values. The census
+//! window and the left-right check are fixed by the hardware design; their options are there to
+//! show what they cost or gain.
 //! `--opencv` gives OpenCV's best rate per scene in percent (tsukuba, teddy, cones, Reindeer, as
-//! printed by tests/middlebury.rs); settings then are ranked by their worst margin to it.
+//! printed by tests/middlebury_vs_opencv.rs); settings then are ranked by their worst margin to
+//! it.
 
 use std::process::ExitCode;
 
@@ -25,7 +29,10 @@ struct Grid {
     p2: Vec<u8>,
     scale: Vec<u8>,
     uniqueness: Vec<u8>,
+    gradient_cost_weight: Vec<u8>,
+    gradient_cost_truncation: Vec<u8>,
     lr_max_diff: Vec<u8>,
+    lr_lenient: Vec<bool>,
     lr_check: Vec<bool>,
     /// Census windows, width × height.
     census: Vec<(u8, u8)>,
@@ -43,11 +50,14 @@ fn parse_args() -> Result<Grid, String> {
     use lexopt::prelude::*;
     let default = SgmConfig::default();
     let mut grid = Grid {
-        p1: vec![4, 6, 8, 10, 12, 16],
-        p2: vec![48, 64, 96, 120, 160, 200, 255],
-        scale: vec![0, 8, 16, 32, 64],
+        p1: vec![24, 32, 40, 48, 56],
+        p2: vec![96, 120, 160, 200, 255],
+        scale: vec![0, 16, 32, 64, 128],
         uniqueness: vec![0, 2, 5, 10],
+        gradient_cost_weight: vec![default.gradient_cost_weight],
+        gradient_cost_truncation: vec![default.gradient_cost_truncation],
         lr_max_diff: vec![default.lr_max_diff],
+        lr_lenient: vec![default.lr_lenient],
         lr_check: vec![default.lr_check],
         census: vec![(default.census_width, default.census_height)],
         paths: default.paths,
@@ -62,7 +72,14 @@ fn parse_args() -> Result<Grid, String> {
             Long("p2") => grid.p2 = list("p2", value(&mut parser)?)?,
             Long("scale") => grid.scale = list("scale", value(&mut parser)?)?,
             Long("uniqueness") => grid.uniqueness = list("uniqueness", value(&mut parser)?)?,
+            Long("gradient-weight") => grid.gradient_cost_weight = list("gradient-weight", value(&mut parser)?)?,
+            Long("gradient-truncation") => {
+                grid.gradient_cost_truncation = list("gradient-truncation", value(&mut parser)?)?
+            }
             Long("lr-max-diff") => grid.lr_max_diff = list("lr-max-diff", value(&mut parser)?)?,
+            Long("lr-lenient") => {
+                grid.lr_lenient = list::<u8>("lr-lenient", value(&mut parser)?)?.iter().map(|&v| v != 0).collect()
+            }
             Long("lr-check") => {
                 grid.lr_check = list::<u8>("lr-check", value(&mut parser)?)?.iter().map(|&v| v != 0).collect()
             }
@@ -119,22 +136,38 @@ fn run() -> Result<(), String> {
             for &scale in &grid.scale {
                 for &uniqueness in &grid.uniqueness {
                     for &lr_check in &grid.lr_check {
-                        // Without the check its tolerance is moot: score that once.
+                        // Without the check its tolerance and leniency are moot: score that once.
                         let tolerances = if lr_check { &grid.lr_max_diff[..] } else { &grid.lr_max_diff[..1] };
-                        for &lr_max_diff in tolerances {
+                        let lenient = if lr_check { &grid.lr_lenient[..] } else { &grid.lr_lenient[..1] };
+                        for (&lr_max_diff, &lr_lenient) in
+                            tolerances.iter().flat_map(|t| lenient.iter().map(move |l| (t, l)))
+                        {
                             for &(census_width, census_height) in &grid.census {
-                                configs.push(SgmConfig {
-                                    paths: grid.paths,
-                                    p1,
-                                    p2,
-                                    p2_gradient_scale: scale,
-                                    uniqueness_percent: uniqueness,
-                                    lr_check,
-                                    lr_max_diff,
-                                    census_width,
-                                    census_height,
-                                    ..SgmConfig::default()
-                                });
+                                for &gradient_cost_weight in &grid.gradient_cost_weight {
+                                    // Without the term its truncation is moot: score that once.
+                                    let truncations = if gradient_cost_weight == 0 {
+                                        &grid.gradient_cost_truncation[..1]
+                                    } else {
+                                        &grid.gradient_cost_truncation[..]
+                                    };
+                                    for &gradient_cost_truncation in truncations {
+                                        configs.push(SgmConfig {
+                                            paths: grid.paths,
+                                            p1,
+                                            p2,
+                                            p2_gradient_scale: scale,
+                                            uniqueness_percent: uniqueness,
+                                            lr_check,
+                                            lr_max_diff,
+                                            lr_lenient,
+                                            census_width,
+                                            census_height,
+                                            gradient_cost_weight,
+                                            gradient_cost_truncation,
+                                            ..SgmConfig::default()
+                                        });
+                                    }
+                                }
                             }
                         }
                     }
@@ -171,19 +204,28 @@ fn run() -> Result<(), String> {
         scored.len(),
         grid.paths.count()
     );
-    println!("| p1 | p2 | scale | U | LR | census | {} | mean | worst margin to OpenCV (pp) |", names.join(" | "));
-    println!("|---:|---:|---:|---:|---:|---:|{}---:|---:|", "---:|".repeat(names.len()));
+    println!(
+        "| p1 | p2 | scale | U | LR | census | gradient w, T | {} | mean | worst margin to OpenCV (pp) |",
+        names.join(" | ")
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---:|{}---:|---:|", "---:|".repeat(names.len()));
     for s in scored.iter().take(grid.top) {
         let rates: Vec<String> = s.percent.iter().map(|p| format!("{p:.2}")).collect();
         println!(
-            "| {} | {} | {} | {} | {} | {}x{} | {} | {:.2} | {} |",
+            "| {} | {} | {} | {} | {} | {}x{} | {}, {} | {} | {:.2} | {} |",
             s.config.p1,
             s.config.p2,
             s.config.p2_gradient_scale,
             s.config.uniqueness_percent,
-            if s.config.lr_check { format!("<={}", s.config.lr_max_diff) } else { "off".to_owned() },
+            match (s.config.lr_check, s.config.lr_lenient) {
+                (false, _) => "off".to_owned(),
+                (true, false) => format!("<={}", s.config.lr_max_diff),
+                (true, true) => format!("<={} lenient", s.config.lr_max_diff),
+            },
             s.config.census_width,
             s.config.census_height,
+            s.config.gradient_cost_weight,
+            s.config.gradient_cost_truncation,
             rates.join(" | "),
             s.mean_percent,
             s.worst_margin_pp.map_or("-".to_owned(), |m| format!("{m:+.2}"))

@@ -25,6 +25,12 @@ impl PathMode {
 pub struct SgmConfig {
     pub census_width: u8,
     pub census_height: u8,
+    /// Weight `w` of the absolute difference of horizontal intensity gradients added to the
+    /// census cost: `C = Hamming + min(w · |GL(x) − GR(x − d)|, gradient_cost_truncation)`.
+    /// 0 = census only.
+    pub gradient_cost_weight: u8,
+    /// Truncation `T` of the weighted gradient difference (0 also disables the term).
+    pub gradient_cost_truncation: u8,
     pub disparities: u16,
     pub paths: PathMode,
     pub p1: u8,
@@ -36,28 +42,35 @@ pub struct SgmConfig {
     pub uniqueness_percent: u8,
     pub lr_check: bool,
     pub lr_max_diff: u8,
+    /// OpenCV's lenient check: a pixel passes if either integer neighbour of its subpixel
+    /// disparity (floor or ceil) passes, instead of only its integer winner.
+    pub lr_lenient: bool,
     pub subpixel: bool,
     pub median: bool,
 }
 
 impl Default for SgmConfig {
     /// The configuration the `sgm` CLI and the host-side matcher use by default. P1, P2, the P2
-    /// gradient scale and the uniqueness margin are tuned on the Middlebury scenes (see
-    /// `PARITY.md`). The FPGA flies the same data path with [`PathMode::Four`] (the only mode
-    /// whose buffers fit on-chip, see `README.md`).
+    /// gradient scale, the uniqueness margin and the gradient term of the cost are tuned on the
+    /// Middlebury scenes, the LR check's leniency and the median of the valid values chosen there
+    /// (see `PARITY.md`). The FPGA flies the same data path with [`PathMode::Four`] (the only
+    /// mode whose buffers fit on-chip, see `README.md`).
     fn default() -> Self {
         SgmConfig {
             census_width: 9,
             census_height: 7,
+            gradient_cost_weight: 4,
+            gradient_cost_truncation: 32,
             disparities: 128,
             paths: PathMode::Eight,
-            p1: 24,
-            p2: 200,
-            p2_gradient_scale: 8,
+            p1: 40,
+            p2: 160,
+            p2_gradient_scale: 64,
             path_cost_bits: 7,
             uniqueness_percent: 0,
             lr_check: true,
             lr_max_diff: 2,
+            lr_lenient: true,
             subpixel: true,
             median: true,
         }
@@ -66,11 +79,31 @@ impl Default for SgmConfig {
 
 /// Disparity counts the hardware supports; the model accepts any multiple of 16 up to 256.
 pub const MAX_DISPARITIES: u16 = 256;
+/// Largest `gradient_cost_weight`: a 4-bit factor (shift-and-add in fabric, no DSP).
+pub const MAX_GRADIENT_COST_WEIGHT: u8 = 15;
+/// Largest `gradient_cost_truncation`: with at most 64 census bits the matching cost stays
+/// within a byte.
+pub const MAX_GRADIENT_COST_TRUNCATION: u8 = 255 - 64;
+/// Largest `|GL − GR|`: two gradients of `−255 ..= 255`.
+pub const MAX_GRADIENT_DIFFERENCE: u16 = 510;
 
 impl SgmConfig {
     /// Bits of a census word: the window without its centre.
     pub fn census_bits(&self) -> u32 {
         u32::from(self.census_width) * u32::from(self.census_height) - 1
+    }
+
+    /// The largest value of the gradient term, `min(510 · w, T)` (0 when disabled).
+    pub fn gradient_cost_max(&self) -> u16 {
+        // In u32: an unvalidated weight up to 255 times 510 overflows a u16.
+        let weighted = u32::from(MAX_GRADIENT_DIFFERENCE) * u32::from(self.gradient_cost_weight);
+        weighted.min(u32::from(self.gradient_cost_truncation)) as u16
+    }
+
+    /// The largest matching cost, `w·h − 1 + gradient_cost_max`: also the cost where `x − d < 0`
+    /// (no right pixel). At most 64 + 191 = 255 for a valid configuration, so a cost fits a byte.
+    pub fn cost_max(&self) -> u16 {
+        self.census_bits() as u16 + self.gradient_cost_max()
     }
 
     /// The saturation value of a stored path cost.
@@ -85,6 +118,15 @@ impl SgmConfig {
         }
         if self.census_width == 0 || self.census_height == 0 || self.census_bits() > 64 {
             return bad(format!("census window {}x{} must have 1..=64 bits", self.census_width, self.census_height));
+        }
+        if self.gradient_cost_weight > MAX_GRADIENT_COST_WEIGHT
+            || self.gradient_cost_truncation > MAX_GRADIENT_COST_TRUNCATION
+        {
+            return bad(format!(
+                "gradient_cost_weight {} must be <= {MAX_GRADIENT_COST_WEIGHT} and gradient_cost_truncation {} <= \
+                 {MAX_GRADIENT_COST_TRUNCATION}",
+                self.gradient_cost_weight, self.gradient_cost_truncation
+            ));
         }
         if self.disparities < 16 || self.disparities > MAX_DISPARITIES || !self.disparities.is_multiple_of(16) {
             return bad(format!("disparities {} must be a multiple of 16 in 16..=256", self.disparities));

@@ -165,6 +165,9 @@ pub struct HwConfig {
     pub disparities: u32,
     pub census_width: u32,
     pub census_height: u32,
+    /// Largest value of the gradient term of the matching cost (`SgmConfig::gradient_cost_max`);
+    /// 0 = census-only cost, no gradient hardware.
+    pub gradient_cost_max: u32,
     pub path_cost_bits: u32,
     pub paths: PathMode,
     pub subpixel: bool,
@@ -183,7 +186,8 @@ pub const ROVER_FRAME_RATE_HZ: f64 = 14.6;
 
 impl HwConfig {
     /// The configuration this crate proposes for the LX75: 1024×508, D = 128, `Four` paths,
-    /// b = 7, 9×7 census, 16 disparities per clock at 75 MHz. See `README.md` for its budget.
+    /// b = 7, 9×7 census plus the default gradient term (≤ 32), 16 disparities per clock at
+    /// 75 MHz. See `README.md` for its budget.
     pub fn lx75_rover() -> HwConfig {
         HwConfig {
             clock_hz: 75.0e6,
@@ -196,6 +200,7 @@ impl HwConfig {
             disparities: 128,
             census_width: 9,
             census_height: 7,
+            gradient_cost_max: 32,
             path_cost_bits: 7,
             paths: PathMode::Four,
             subpixel: true,
@@ -214,6 +219,7 @@ impl HwConfig {
             disparities: u32::from(config.disparities),
             census_width: u32::from(config.census_width),
             census_height: u32::from(config.census_height),
+            gradient_cost_max: u32::from(config.gradient_cost_max()),
             path_cost_bits: u32::from(config.path_cost_bits),
             paths: config.paths,
             subpixel: config.subpixel,
@@ -243,12 +249,18 @@ impl HwConfig {
         if self.census_width * self.census_height > 65 {
             return bad(format!("census window {}x{} exceeds 64 bits", self.census_width, self.census_height));
         }
+        if self.gradient_cost_max > 255 {
+            return bad(format!("gradient cost maximum {} must be <= 255", self.gradient_cost_max));
+        }
         if !(1..=16).contains(&self.path_cost_bits) {
             return bad(format!("path cost bits {} must be in 1..=16", self.path_cost_bits));
         }
         Ok(())
     }
 }
+
+/// Bits of a horizontal gradient `I(x + 1) − I(x − 1)`: −255 ..= 255.
+const GRADIENT_BITS: u32 = 9;
 
 /// Bits to hold the values `0 ..= max`.
 fn bits_for(max: u64) -> u32 {
@@ -261,6 +273,9 @@ pub struct Budget {
     pub config: HwConfig,
     /// `ceil(D / units)`.
     pub cycles_per_pixel: u64,
+    /// Width of a matching cost `C` (census bits plus the gradient term): what each disparity
+    /// unit adds to its path costs. `C` is computed on the fly and never stored.
+    pub cost_bits: u32,
     /// `W · cycles_per_pixel + horizontal blanking`.
     pub cycles_per_line: u64,
     /// Raster passes per frame: 1 for `Four`, 2 for `Eight` (same hardware, run twice).
@@ -291,6 +306,7 @@ pub fn budget(config: &HwConfig) -> Result<Budget, SgmError> {
     let frames_per_second = c.clock_hz / cycles_per_frame as f64;
 
     let census_bits = c.census_width * c.census_height - 1;
+    let cost_bits = bits_for(u64::from(census_bits + c.gradient_cost_max));
     // The sum a pass produces: 4 paths of b bits need b + 2 bits.
     let pass_sum_bits = b + 2;
     // The sum the selection sees: the second pass adds the first pass's 4 paths.
@@ -317,6 +333,12 @@ pub fn budget(config: &HwConfig) -> Result<Budget, SgmError> {
     // The right census words of the last D columns, `units` of them read per clock at offsets
     // that move every clock: registers, not a two-port RAM.
     buffers.push(Buffer::new("right census window (last D words)", cycles_per_pixel, units * census_bits, Fabric));
+    if c.gradient_cost_max > 0 {
+        // GR(x − d) of the last D right pixels (9 bits signed), beside their census words. GL(x)
+        // and GR of the newest pixel come from the census window's centre row (its pixels
+        // x − 1 and x + 1 are in the window registers already): no line buffer.
+        buffers.push(Buffer::new("right gradients (last D pixels)", cycles_per_pixel, units * GRADIENT_BITS, Fabric));
+    }
     // Path (1,0) only needs the previous pixel of the same row.
     buffers.push(Buffer::new("path (1,0): previous pixel's costs", cycles_per_pixel, units * b, Fabric));
     // The three row-based paths read the previous row's costs, `units` values per clock.
@@ -348,13 +370,16 @@ pub fn budget(config: &HwConfig) -> Result<Budget, SgmError> {
         // dR(xr) collects S(xr + d, d) over the next D columns: one running (min, argmin) per
         // column still open, `units` of them updated per clock.
         buffers.push(Buffer::new("LR: right-disparity running minima", d, sum_bits + disparity_bits, Fabric));
-        // dR of the last D columns, final; the delayed left pixel looks up dR(x − d1).
+        // dR of the last D columns, final; the delayed left pixel looks up dR(x − d1), or with
+        // the lenient check dR(x − floor) and dR(x − ceil) of its subpixel disparity: two
+        // neighbouring registers, i.e. a second read multiplexer, no more storage.
         buffers.push(Buffer::new("LR: finished right disparities", d, disparity_bits, Fabric));
         // A left result waits D − 1 columns until every dR it may need is final.
         buffers.push(Buffer::new("LR: left disparity delay line (SRL)", d, output_bits + disparity_bits, Fabric));
     }
     if c.median {
-        // Two previous output rows, read together.
+        // Two previous output rows, read together. (The median of the valid values sorts all
+        // nine with a 25-comparator network and picks index 2, 3 or 4: logic, not storage.)
         buffers.push(Buffer::new("median line buffers (2 rows)", w, 2 * output_bits, BlockRam));
     }
 
@@ -374,6 +399,7 @@ pub fn budget(config: &HwConfig) -> Result<Budget, SgmError> {
     Ok(Budget {
         config: *config,
         cycles_per_pixel,
+        cost_bits,
         cycles_per_line,
         passes,
         cycles_per_frame,
@@ -431,7 +457,8 @@ impl Budget {
         let mut out = String::new();
         let _ = writeln!(
             out,
-            "{}x{} px, D = {}, {:?} paths, b = {}, census {}x{}, {} disparities/clock at {:.1} MHz",
+            "{}x{} px, D = {}, {:?} paths, b = {}, census {}x{}, gradient term ≤ {}, {} disparities/clock at {:.1} \
+             MHz",
             c.width,
             c.height,
             c.disparities,
@@ -439,6 +466,7 @@ impl Budget {
             c.path_cost_bits,
             c.census_width,
             c.census_height,
+            c.gradient_cost_max,
             c.disparity_units,
             c.clock_hz / 1e6
         );
@@ -451,6 +479,13 @@ impl Budget {
             self.cycles_per_frame,
             self.passes,
             if self.passes == 1 { "" } else { "es" }
+        );
+        let _ = writeln!(
+            out,
+            "- matching cost: {} bits (0 ..= {}), path costs saturate at {}",
+            self.cost_bits,
+            c.census_width * c.census_height - 1 + c.gradient_cost_max,
+            (1u64 << c.path_cost_bits) - 1
         );
         let _ = writeln!(
             out,

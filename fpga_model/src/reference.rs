@@ -50,19 +50,17 @@ pub fn compute_with_intermediates(
     check_image(left)?;
     check_image(right)?;
     check_pair(left, right)?;
-    let (width, height) = (left.width, left.height);
-    let disparities = usize::from(config.disparities);
     let window = (usize::from(config.census_width), usize::from(config.census_height));
 
     let census_left = census::transform(left, window.0, window.1);
     let census_right = census::transform(right, window.0, window.1);
-    let cost = cost::volume(&census_left, &census_right, width, height, disparities, config.census_bits());
+    let cost = cost::volume(&census_left, &census_right, left, right, config);
     let aggregated = aggregate::sum(&cost, left, config);
     let winners = select::winner(&aggregated, config.uniqueness_percent);
     let subpixel = select::subpixel(&aggregated, &winners, config.subpixel);
     let right_disparity = lr::right_disparity(&aggregated);
     let lr_checked = if config.lr_check {
-        lr::check(&subpixel, &winners, &right_disparity, config.lr_max_diff)
+        lr::check(&subpixel, &winners, &right_disparity, config.lr_max_diff, config.lr_lenient)
     } else {
         subpixel.clone()
     };

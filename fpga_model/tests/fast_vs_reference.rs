@@ -77,33 +77,37 @@ fn config_strategy() -> impl Strategy<Value = SgmConfig> {
         Just((5, 13)),
     ];
     let penalties = (1u8..=255).prop_flat_map(|p1| (Just(p1), p1..=255u8));
+    // Weight 0 (census only) often; truncations up to the largest allowed, 191.
+    let gradient_term = (prop_oneof![Just(0u8), 1u8..=15], prop_oneof![Just(32u8), 0u8..=191]);
     (
-        window,
+        (window, gradient_term),
         (1u16..=16).prop_map(|k| 16 * k),
         prop_oneof![Just(PathMode::Four), Just(PathMode::Eight)],
         penalties,
         prop_oneof![Just(0u8), any::<u8>()],
         6u8..=12,
         0u8..=100,
-        (any::<bool>(), prop_oneof![0u8..=3, any::<u8>()]),
+        (any::<bool>(), prop_oneof![0u8..=3, any::<u8>()], any::<bool>()),
         any::<bool>(),
         any::<bool>(),
     )
         .prop_map(
             |(
-                (census_width, census_height),
+                ((census_width, census_height), (gradient_cost_weight, gradient_cost_truncation)),
                 disparities,
                 paths,
                 (p1, p2),
                 p2_gradient_scale,
                 path_cost_bits,
                 uniqueness_percent,
-                (lr_check, lr_max_diff),
+                (lr_check, lr_max_diff, lr_lenient),
                 subpixel,
                 median,
             )| SgmConfig {
                 census_width,
                 census_height,
+                gradient_cost_weight,
+                gradient_cost_truncation,
                 disparities,
                 paths,
                 p1,
@@ -113,6 +117,7 @@ fn config_strategy() -> impl Strategy<Value = SgmConfig> {
                 uniqueness_percent,
                 lr_check,
                 lr_max_diff,
+                lr_lenient,
                 subpixel,
                 median,
             },

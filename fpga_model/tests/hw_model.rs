@@ -23,6 +23,7 @@ fn small() -> HwConfig {
         disparities: 16,
         census_width: 3,
         census_height: 3,
+        gradient_cost_max: 0,
         path_cost_bits: 6,
         paths: PathMode::Four,
         subpixel: true,
@@ -109,6 +110,24 @@ fn memory_of_a_small_configuration_by_hand() {
     assert_eq!(bare.bram_blocks(), 8);
     assert_eq!(bare.dsp_count(), 2);
     assert_eq!(b.external_bytes_per_frame(), 0);
+    assert_eq!(b.cost_bits, 4, "census 3×3: 0 ..= 8");
+}
+
+#[test]
+fn gradient_term_widens_the_cost_and_adds_fabric_only() {
+    let census_only = budget(&small()).unwrap();
+    let with_gradient = budget(&HwConfig { gradient_cost_max: 32, ..small() }).unwrap();
+    // C ≤ 8 + 32 = 40: 6 bits instead of 4.
+    assert_eq!(with_gradient.cost_bits, 6);
+    // The right gradients of the last D = 16 pixels, 9 bits each, beside the census window.
+    assert_eq!(with_gradient.fabric_bits(), census_only.fabric_bits() + 16 * 9);
+    let gradients = with_gradient.buffers.iter().find(|b| b.name.contains("right gradients")).unwrap();
+    assert_eq!((gradients.depth_words, gradients.width_bits, gradients.storage), (4, 4 * 9, Storage::Fabric));
+    // No block RAM, no DSP, no clock.
+    assert_eq!(with_gradient.bram_blocks(), census_only.bram_blocks());
+    assert_eq!(with_gradient.dsp_count(), census_only.dsp_count());
+    assert_eq!(with_gradient.cycles_per_frame, census_only.cycles_per_frame);
+    assert!(budget(&HwConfig { gradient_cost_max: 256, ..small() }).is_err());
 }
 
 #[test]
@@ -136,6 +155,11 @@ fn lx75_configuration_fits_and_reaches_the_rover_frame_rate() {
     assert_eq!(blocks_of(&b, "previous row's costs"), vec![52, 52, 52]);
     assert_eq!(b.bram_blocks(), 6 + 3 * 52 + 3 + 2);
     assert_eq!(b.dsp_count(), 3);
+    // C = Hamming (≤ 62) + gradient term (≤ 32) ≤ 94: 7 bits, within Lmax = 127 of b = 7.
+    assert_eq!(b.cost_bits, 7);
+    // Right census window 128 × 62, right gradients 128 × 9, path (1,0) 128 × 7, P2 table
+    // 256 × 8, LR minima 128 × (9 + 7), finished dR 128 × 7, delay line 128 × (12 + 7).
+    assert_eq!(b.fabric_bits(), 128 * 62 + 128 * 9 + 128 * 7 + 256 * 8 + 128 * 16 + 128 * 7 + 128 * 19);
     assert!(b.fits(&SPARTAN6_LX75));
     assert!(!b.fits(&SPARTAN6_LX45));
     assert!(b.fits(&SPARTAN6_LX100) && b.fits(&SPARTAN6_LX150));

@@ -61,6 +61,8 @@ fn stereo_pair(width: usize, height: usize, seed: u64) -> (GrayImage, GrayImage)
 prop_compose! {
     fn configs()(
         window in prop::sample::select(vec![(1u8, 1u8), (3, 3), (5, 3), (5, 5), (7, 5), (9, 7), (13, 5)]),
+        gradient_cost_weight in prop::sample::select(vec![0u8, 0, 1, 2, 4, 15]),
+        gradient_cost_truncation in prop::sample::select(vec![0u8, 1, 16, 32, 191]),
         disparities in prop::sample::select(vec![16u16, 32]),
         eight in any::<bool>(),
         p1 in 1u8..=40,
@@ -70,12 +72,15 @@ prop_compose! {
         uniqueness_percent in 0u8..=100,
         lr_check in any::<bool>(),
         lr_max_diff in 0u8..=3,
+        lr_lenient in any::<bool>(),
         subpixel in any::<bool>(),
         median in any::<bool>(),
     ) -> SgmConfig {
         SgmConfig {
             census_width: window.0,
             census_height: window.1,
+            gradient_cost_weight,
+            gradient_cost_truncation,
             disparities,
             paths: if eight { PathMode::Eight } else { PathMode::Four },
             p1,
@@ -85,6 +90,7 @@ prop_compose! {
             uniqueness_percent,
             lr_check,
             lr_max_diff,
+            lr_lenient,
             subpixel,
             median,
         }
@@ -122,18 +128,34 @@ fn naive_census(image: &GrayImage, window_w: usize, window_h: usize) -> Vec<u64>
     out
 }
 
-/// Hamming distance bit by bit.
-fn naive_cost(cl: &[u64], cr: &[u64], width: usize, height: usize, disparities: usize, bits: u32) -> Vec<u8> {
+/// Horizontal gradient at `(x, y)` with an explicit border case instead of clamping.
+fn naive_gradient(image: &GrayImage, x: usize, y: usize) -> i64 {
+    let at = |x: usize| i64::from(image.pixels[y * image.width + x]);
+    let last = image.width - 1;
+    let next = if x == last { at(last) } else { at(x + 1) };
+    let previous = if x == 0 { at(0) } else { at(x - 1) };
+    next - previous
+}
+
+/// Hamming distance bit by bit plus the gradient term in wide signed arithmetic; the cost of
+/// `x − d < 0` as the largest cost any pair of gradients (−255 ..= 255) can give.
+fn naive_cost(cl: &[u64], cr: &[u64], left: &GrayImage, right: &GrayImage, config: &SgmConfig) -> Vec<u8> {
+    let (width, height, disparities) = (left.width, left.height, usize::from(config.disparities));
+    let (weight, truncation) = (i64::from(config.gradient_cost_weight), i64::from(config.gradient_cost_truncation));
+    let term = |a: i64, b: i64| ((a - b).abs() * weight).min(truncation);
+    let worst = i64::from(config.census_bits()) + (-255..=255).map(|g| term(g, -255)).max().unwrap();
     let mut out = Vec::new();
     for y in 0..height {
         for x in 0..width {
             for d in 0..disparities {
                 if d > x {
-                    out.push(bits as u8);
+                    out.push(u8::try_from(worst).unwrap());
                     continue;
                 }
                 let (a, b) = (cl[y * width + x], cr[y * width + x - d]);
-                out.push((0..64).filter(|k| (a >> k) & 1 != (b >> k) & 1).count() as u8);
+                let hamming = (0..64).filter(|k| (a >> k) & 1 != (b >> k) & 1).count() as i64;
+                let gradients = term(naive_gradient(left, x, y), naive_gradient(right, x - d, y));
+                out.push(u8::try_from(hamming + gradients).unwrap());
             }
         }
     }
@@ -284,19 +306,28 @@ fn naive_right(s: &[u16], width: usize, height: usize, disparities: usize) -> Ve
     out
 }
 
-fn naive_lr(image: &[u16], winners: &[Winner], right: &[u16], width: usize, max_diff: u8) -> Vec<u16> {
+/// The check with the candidates in floating point: `d1`, or with `lenient` the integers next to
+/// the subpixel disparity `D16 / 16` (the same one twice when it is an integer).
+fn naive_lr(image: &[u16], winners: &[Winner], right: &[u16], width: usize, max_diff: u8, lenient: bool) -> Vec<u16> {
     (0..image.len())
         .map(|i| {
-            let (x, d1) = ((i % width) as i64, i64::from(winners[i].disparity));
-            let keep = image[i] != INVALID
-                && x - d1 >= 0
-                && (d1 - i64::from(right[i - d1 as usize])).abs() <= i64::from(max_diff);
+            if image[i] == INVALID {
+                return INVALID;
+            }
+            let x = (i % width) as i64;
+            let px = f64::from(image[i]) / 16.0;
+            let candidates: Vec<i64> =
+                if lenient { vec![px.floor() as i64, px.ceil() as i64] } else { vec![i64::from(winners[i].disparity)] };
+            let keep = candidates
+                .iter()
+                .any(|&d| x - d >= 0 && (d - i64::from(right[i - d as usize])).abs() <= i64::from(max_diff));
             if keep { image[i] } else { INVALID }
         })
         .collect()
 }
 
-/// The median as the smallest window value that at least five window values do not exceed.
+/// The median as the smallest valid window value that at least half (rounded up) of the valid
+/// window values do not exceed; INVALID if fewer than five are valid.
 fn naive_median(image: &[u16], width: usize, height: usize) -> Vec<u16> {
     let mut out = image.to_vec();
     for y in 1..height.saturating_sub(1) {
@@ -307,8 +338,13 @@ fn naive_median(image: &[u16], width: usize, height: usize) -> Vec<u16> {
                     image[(y as isize + dy) as usize * width + (x as isize + dx) as usize]
                 })
                 .collect();
-            out[y * width + x] =
-                *window.iter().filter(|&&v| window.iter().filter(|&&u| u <= v).count() >= 5).min().unwrap();
+            let valid: Vec<u16> = window.into_iter().filter(|&v| v != INVALID).collect();
+            out[y * width + x] = if valid.len() < 5 {
+                INVALID
+            } else {
+                let half = valid.len().div_ceil(2);
+                *valid.iter().filter(|&&v| valid.iter().filter(|&&u| u <= v).count() >= half).min().unwrap()
+            };
         }
     }
     out
@@ -326,12 +362,12 @@ fn naive_mark_invalid(image: &[u16], width: usize) -> Vec<u16> {
 fn naive_core(left: &GrayImage, right: &GrayImage, config: &SgmConfig) -> Vec<u16> {
     let (w, h, d) = (left.width, left.height, usize::from(config.disparities));
     let (cw, ch) = (usize::from(config.census_width), usize::from(config.census_height));
-    let cost = naive_cost(&naive_census(left, cw, ch), &naive_census(right, cw, ch), w, h, d, config.census_bits());
+    let cost = naive_cost(&naive_census(left, cw, ch), &naive_census(right, cw, ch), left, right, config);
     let s = naive_sum(&cost, left, config);
     let winners: Vec<Winner> = s.chunks(d).map(|c| naive_winner(c, config.uniqueness_percent)).collect();
     let mut image = naive_subpixel(&s, &winners, d, config.subpixel);
     if config.lr_check {
-        image = naive_lr(&image, &winners, &naive_right(&s, w, h, d), w, config.lr_max_diff);
+        image = naive_lr(&image, &winners, &naive_right(&s, w, h, d), w, config.lr_max_diff, config.lr_lenient);
     }
     if config.median {
         image = naive_median(&image, w, h);
@@ -354,7 +390,7 @@ fn cost_of(left: &GrayImage, right: &GrayImage, config: &SgmConfig) -> CostVolum
     let (cw, ch) = (usize::from(config.census_width), usize::from(config.census_height));
     let cl = census::transform(left, cw, ch);
     let cr = census::transform(right, cw, ch);
-    cost::volume(&cl, &cr, left.width, left.height, usize::from(config.disparities), config.census_bits())
+    cost::volume(&cl, &cr, left, right, config)
 }
 
 fn sum_of(left: &GrayImage, right: &GrayImage, config: &SgmConfig) -> AggregatedVolume {
@@ -379,14 +415,21 @@ proptest! {
     }
 
     #[test]
-    fn cost_matches_bitwise_hamming((w, h, seed) in sizes(), config in configs()) {
+    fn cost_matches_bitwise_hamming_plus_gradient_term((w, h, seed) in sizes(), config in configs()) {
         let (left, right) = stereo_pair(w, h, seed);
         let (cw, ch) = (usize::from(config.census_width), usize::from(config.census_height));
         let (cl, cr) = (census::transform(&left, cw, ch), census::transform(&right, cw, ch));
         let d = usize::from(config.disparities);
-        let volume = cost::volume(&cl, &cr, w, h, d, config.census_bits());
+        let volume = cost::volume(&cl, &cr, &left, &right, &config);
         prop_assert_eq!((volume.width, volume.height, volume.disparities), (w, h, d));
-        prop_assert_eq!(volume.data, naive_cost(&cl, &cr, w, h, d, config.census_bits()));
+        prop_assert!(volume.data.iter().all(|&c| u16::from(c) <= config.cost_max()));
+        prop_assert_eq!(volume.data, naive_cost(&cl, &cr, &left, &right, &config));
+    }
+
+    #[test]
+    fn gradient_term_matches_wide_arithmetic(a in -255i16..=255, b in -255i16..=255, w in 0u8..=15, t in 0u8..=191) {
+        let wide = (i64::from(a) - i64::from(b)).abs() * i64::from(w);
+        prop_assert_eq!(i64::from(cost::gradient_term(a, b, w, t)), wide.min(i64::from(t)));
     }
 
     #[test]
@@ -445,8 +488,9 @@ proptest! {
         let refined = select::subpixel(&s, &winners, config.subpixel);
         let dr = lr::right_disparity(&s);
         prop_assert_eq!(&dr, &naive_right(&s.data, w, h, s.disparities));
-        let checked = lr::check(&refined, &winners, &dr, config.lr_max_diff);
-        prop_assert_eq!(checked.data, naive_lr(&refined.data, &winners, &dr, w, config.lr_max_diff));
+        let checked = lr::check(&refined, &winners, &dr, config.lr_max_diff, config.lr_lenient);
+        let naive = naive_lr(&refined.data, &winners, &dr, w, config.lr_max_diff, config.lr_lenient);
+        prop_assert_eq!(checked.data, naive);
     }
 
     #[test]
@@ -492,12 +536,57 @@ fn census_of_a_3x3_window_by_hand() {
 }
 
 #[test]
-fn out_of_image_cost_is_the_census_width() {
-    let img = GrayImage::new(4, 1, vec![0, 50, 100, 150]).unwrap();
+fn out_of_image_cost_is_the_worst_cost() {
+    let img = GrayImage::new(4, 1, vec![0, 50, 100, 160]).unwrap();
     let c = census::transform(&img, 5, 3);
-    let cost = cost::volume(&c, &c, 4, 1, 16, 14);
+    let census_only = SgmConfig {
+        census_width: 5,
+        census_height: 3,
+        disparities: 16,
+        gradient_cost_weight: 0,
+        ..SgmConfig::default()
+    };
+    let cost = cost::volume(&c, &c, &img, &img, &census_only);
     assert_eq!(cost.pixel(2, 0)[0], 0, "same image, d = 0: identical census");
-    assert_eq!(cost.pixel(2, 0)[3], 14, "x − d < 0: worst cost");
+    assert_eq!(cost.pixel(2, 0)[3], 14, "x − d < 0: worst cost, the census width");
+    // With the gradient term: 14 + min(510 · 2, 40) = 54. Gradients (borders clamped): 50, 100,
+    // 110, 60; a real match of x = 2 costs its Hamming distance plus min(2 · |110 − G(x − d)|, 40).
+    let combined = SgmConfig { gradient_cost_weight: 2, gradient_cost_truncation: 40, ..census_only };
+    assert_eq!(combined.cost_max(), 54);
+    assert_eq!(cost::horizontal_gradient(&img), vec![50, 100, 110, 60]);
+    let cost = cost::volume(&c, &c, &img, &img, &combined);
+    assert_eq!(cost.pixel(2, 0)[0], 0);
+    assert_eq!(cost.pixel(2, 0)[1], (c[2] ^ c[1]).count_ones() as u8 + 20, "2 · 10");
+    assert_eq!(cost.pixel(2, 0)[2], (c[2] ^ c[0]).count_ones() as u8 + 40, "2 · 60, truncated");
+    assert_eq!(cost.pixel(2, 0)[3], 54);
+}
+
+#[test]
+fn gradient_term_by_hand() {
+    assert_eq!(cost::gradient_term(30, 20, 4, 32), 32, "4 · 10 = 40, truncated to 32");
+    assert_eq!(cost::gradient_term(20, 25, 4, 32), 20, "symmetric, 4 · 5");
+    assert_eq!(cost::gradient_term(-255, 255, 15, 191), 191, "largest difference, no overflow");
+    assert_eq!(cost::gradient_term(-255, 255, 0, 191), 0, "weight 0: census only");
+    assert_eq!(cost::gradient_term(-255, 255, 3, 0), 0, "truncation 0: census only");
+}
+
+#[test]
+fn gradient_ignores_a_brightness_offset() {
+    let img = GrayImage::new(5, 2, vec![10, 40, 20, 90, 60, 0, 0, 7, 7, 200]).unwrap();
+    let brighter = GrayImage::new(5, 2, img.pixels.iter().map(|&p| p + 30).collect()).unwrap();
+    assert_eq!(cost::horizontal_gradient(&img), vec![30, 10, 50, 40, -30, 0, 7, 7, 193, 193]);
+    assert_eq!(cost::horizontal_gradient(&brighter), cost::horizontal_gradient(&img));
+}
+
+#[test]
+fn median_by_hand() {
+    const I: u16 = INVALID;
+    assert_eq!(median::median_of_window([9, 1, 8, 2, 7, 3, 6, 4, 5]), 5, "nine valid: the 5th");
+    assert_eq!(median::median_of_window([I, 1, 8, 2, I, 3, 6, 4, 5]), 4, "seven valid: the 4th");
+    assert_eq!(median::median_of_window([I, 1, 8, 2, I, 3, 6, I, 5]), 3, "six valid: the 3rd (lower median)");
+    assert_eq!(median::median_of_window([I, 1, 8, I, I, 3, 6, I, 5]), 5, "five valid: the 3rd");
+    assert_eq!(median::median_of_window([I, 1, I, I, I, 3, 6, I, 5]), I, "four valid: invalid");
+    assert_eq!(median::median_of_window([1, 1, 1, 1, I, 1, 1, 1, 1]), 1, "an isolated hole is filled");
 }
 
 #[test]

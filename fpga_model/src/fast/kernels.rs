@@ -21,6 +21,7 @@ use std::sync::{Mutex, MutexGuard, PoisonError};
 
 use super::lane::Lane;
 use crate::image::INVALID;
+use crate::stages::lr::candidates;
 
 /// Columns per census block: one 512-bit register of bytes.
 pub(crate) const CENSUS_BLOCK: usize = 64;
@@ -108,10 +109,6 @@ impl Geometry {
             ramp: (0..lanes as u16).collect(),
         }
     }
-
-    pub(crate) fn census_bits(&self) -> u16 {
-        self.neighbours.len() as u16
-    }
 }
 
 /// The configuration in the form the kernels use it.
@@ -119,11 +116,17 @@ impl Geometry {
 pub(crate) struct Params<T> {
     pub p1: T,
     pub path_cost_max: T,
+    /// `w` and `T` of the gradient term of the cost; 0 in either disables it.
+    pub gradient_weight: u16,
+    pub gradient_truncation: u16,
+    /// The cost of `x − d < 0`: `SgmConfig::cost_max` (≤ 255).
+    pub cost_max: u8,
     /// `P2eff` for each intensity step `g = 0 ..= 255`.
     pub p2_effective: [u8; 256],
     pub uniqueness_percent: u32,
     pub lr_check: bool,
     pub lr_max_diff: u16,
+    pub lr_lenient: bool,
     pub subpixel: bool,
 }
 
@@ -214,6 +217,12 @@ pub(crate) struct Scratch<T> {
     census_right: Vec<u8>,
     cost: Vec<T>,
     cost_bytes: Vec<u8>,
+    /// Horizontal gradients `GL` of the left image's current row.
+    gradient_left: Vec<i16>,
+    /// `GR` of the right image's current row, mirrored like the census (`GR(x − d)` at
+    /// `W − 1 − x + d`), with `Dp` values of slack for the lanes of `x − d < 0`, whose costs are
+    /// overwritten.
+    gradient_right: Vec<i16>,
     /// The virtual predecessor of a path's first pixel: all zero with `M = 0` and `P2eff = 0`
     /// gives `best = 0`, hence `L = min(C, Lmax)` as the spec asks, without a branch.
     zero: Vec<T>,
@@ -238,6 +247,8 @@ impl<T: Lane> Scratch<T> {
             census_right: vec![0; g.planes * g.right_plane_stride],
             cost: vec![T::MAX; g.lanes],
             cost_bytes: vec![0; g.lanes],
+            gradient_left: vec![0; g.width],
+            gradient_right: vec![0; g.width + g.lanes],
             zero: vec![T::default(); g.slot],
             zero_sums: vec![0; g.lanes],
             horizontal: vec![T::MAX; 2 * g.slot],
@@ -255,6 +266,7 @@ impl<T: Lane> Scratch<T> {
         self.census_left.capacity()
             + self.census_right.capacity()
             + self.cost_bytes.capacity()
+            + (self.gradient_left.capacity() + self.gradient_right.capacity()) * size_of::<i16>()
             + (self.cost.capacity() + self.zero.capacity() + self.horizontal.capacity()) * size_of::<T>()
             + (self.right_disparity.capacity()
                 + self.zero_sums.capacity()
@@ -314,8 +326,6 @@ pub(crate) struct FinishJob<'a> {
     pub median: bool,
     pub pre: &'a [u16],
     pub out: &'a mut [u16],
-    /// `3 × W`: the sorted columns of the current row.
-    pub columns: &'a mut [u16],
 }
 
 /// Work handed to a dispatched kernel.
@@ -399,14 +409,19 @@ fn census_row(planes: &mut [u8], plane_stride: usize, padded: &[u8], geometry: &
     }
 }
 
-/// `C(x, y, d)` for `d < Dp` into `cost`: Hamming distance for `x − d ≥ 0`, the census width for
-/// `x − d < 0`, `T::MAX` for the padding disparities. `bytes` is a `Dp`-byte scratch row.
+/// `C(x, y, d)` for `d < Dp` into `cost`: Hamming distance plus the gradient term for
+/// `x − d ≥ 0`, `cost_max` for `x − d < 0`, `T::MAX` for the padding disparities. `bytes` is a
+/// `Dp`-byte scratch row; `gradient` is `GL(x)`, `gradient_right` the mirrored `GR` row.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn cost_pixel<T: Lane>(
     cost: &mut [T],
     bytes: &mut [u8],
     census_left: &[u8],
     census_right: &[u8],
+    gradient_right: &[i16],
+    gradient: i16,
+    params: &Params<T>,
     g: &Geometry,
     x: usize,
 ) {
@@ -422,17 +437,46 @@ fn cost_pixel<T: Lane>(
         7 => cost_planes::<7>(bytes, census_left, census_right, g, x),
         _ => cost_planes::<8>(bytes, census_left, census_right, g, x),
     }
+    if params.gradient_weight > 0 && params.gradient_truncation > 0 {
+        let right = &gradient_right[g.width - 1 - x..][..g.lanes];
+        let (weight, truncation) = (params.gradient_weight, params.gradient_truncation);
+        for (c, &r) in bytes[..g.lanes].iter_mut().zip(right) {
+            // In u16: 510 · 15 does not overflow; after the min the term is ≤ 191, and a
+            // Hamming cost ≤ 64 plus it stays within the byte.
+            let term = (gradient.abs_diff(r) * weight).min(truncation);
+            *c = c.wrapping_add(term as u8);
+        }
+    }
     // One widening loop of runtime length (a byte-to-word store inside the chunked loop above
     // makes LLVM scatter the words one by one).
     for (out, &c) in cost[..g.lanes].iter_mut().zip(&bytes[..g.lanes]) {
         *out = T::from_u8(c);
     }
     if x + 1 < g.disparities {
-        cost[x + 1..g.disparities].fill(T::from_u16(g.census_bits()));
+        cost[x + 1..g.disparities].fill(T::from_u8(params.cost_max));
     }
     if g.lanes > g.disparities {
         cost[g.disparities..g.lanes].fill(T::MAX);
     }
+}
+
+/// `G(x) = I(clamp(x + 1)) − I(clamp(x − 1))` of one image row into `out`. A `mirrored` row
+/// holds `I(W − 1 − j)` at `j`, so there `G` of the original column is `row[j − 1] − row[j + 1]`.
+#[inline(always)]
+fn gradient_row(row: &[u8], out: &mut [i16], mirrored: bool) {
+    let w = row.len();
+    let sign = if mirrored { -1 } else { 1 };
+    let difference = |next: u8, previous: u8| sign * (i16::from(next) - i16::from(previous));
+    if w == 1 {
+        out[0] = 0;
+        return;
+    }
+    // Interior as a zip of shifted slices (vectorises); the two clamped borders apart.
+    for ((o, &next), &previous) in out[1..w - 1].iter_mut().zip(&row[2..]).zip(&row[..w - 2]) {
+        *o = difference(next, previous);
+    }
+    out[0] = difference(row[1], row[0]);
+    out[w - 1] = difference(row[w - 1], row[w - 2]);
 }
 
 /// Hamming distances of `P` census bit-planes into `bytes[..Dp]`, in chunks of one 512-bit
@@ -684,6 +728,8 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
         census_right,
         cost,
         cost_bytes,
+        gradient_left,
+        gradient_right,
         zero,
         zero_sums,
         horizontal,
@@ -697,6 +743,10 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
     } = scratch;
     census_row(census_left, g.left_plane_stride, frame.padded_left, g, y, false);
     census_row(census_right, g.right_plane_stride, frame.padded_right, g, y, true);
+    if params.gradient_weight > 0 && params.gradient_truncation > 0 {
+        gradient_row(&frame.left[y * w..][..w], gradient_left, false);
+        gradient_row(&frame.padded_right[y * g.pad_stride + g.pad_left..][..w], &mut gradient_right[..w], true);
+    }
 
     let selecting = !matches!(sums, Sums::Store(_));
     let track_right = selecting && params.lr_check;
@@ -736,7 +786,7 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
         let Block { lanes: current_lanes, minima: current_minima } = &mut *current;
         for i in k * g.block_px..((k + 1) * g.block_px).min(w) {
             let x = direction.physical(i, w);
-            cost_pixel(cost, cost_bytes, census_left, census_right, g, x);
+            cost_pixel(cost, cost_bytes, census_left, census_right, gradient_right, gradient_left[x], params, g, x);
             let intensity = left_row[x];
 
             // Predecessors: from the left (same row), then top-left, top, top-right.
@@ -825,8 +875,10 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
             } else if !params.lr_check {
                 refined[x]
             } else {
-                let d1 = usize::from(d1);
-                let consistent = x >= d1 && right_disparity[w - 1 - (x - d1)].abs_diff(d1 as u16) <= params.lr_max_diff;
+                let consistent = candidates(d1, refined[x], params.lr_lenient).iter().any(|&d| {
+                    let d = usize::from(d);
+                    x >= d && right_disparity[w - 1 - (x - d)].abs_diff(d as u16) <= params.lr_max_diff
+                });
                 if consistent { refined[x] } else { INVALID }
             };
         }
@@ -835,38 +887,118 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
     Ok(())
 }
 
-/// Median of three.
-#[inline(always)]
-fn median3(a: u16, b: u16, c: u16) -> u16 {
-    a.min(b).max(a.max(b).min(c))
+/// Defines `SORT9`, a sorting network for nine values (25 compare-exchanges in 7 layers,
+/// Floyd's network; checked against sorting in the unit tests below by the 0-1 principle), and
+/// `sort9_lanes`, which applies it to nine vectors lane by lane. The macro writes the 25 steps
+/// out with constant indices: as a loop over the table LLVM keeps the nine vectors on the stack
+/// and reloads them at every step.
+macro_rules! sort9_network {
+    ($(($i:literal, $j:literal)),* $(,)?) => {
+        #[cfg(test)]
+        const SORT9: [(usize, usize); 25] = [$(($i, $j)),*];
+
+        #[inline(always)]
+        fn sort9_lanes(v: &mut [[u16; MEDIAN_BLOCK]; 9]) {
+            $(compare_exchange(v, $i, $j);)*
+        }
+    };
 }
 
-/// Stage 7 (3×3 median, borders kept) and stage 8 (invalid marking).
+sort9_network![
+    (0, 3),
+    (1, 7),
+    (2, 5),
+    (4, 8),
+    (0, 7),
+    (2, 4),
+    (3, 8),
+    (5, 6),
+    (0, 2),
+    (1, 3),
+    (4, 5),
+    (7, 8),
+    (1, 4),
+    (3, 6),
+    (5, 7),
+    (0, 1),
+    (2, 4),
+    (3, 5),
+    (6, 8),
+    (2, 3),
+    (4, 5),
+    (6, 7),
+    (1, 2),
+    (3, 4),
+    (5, 6),
+];
+
+/// `v[i], v[j] = min, max` lane by lane.
+#[inline(always)]
+fn compare_exchange(v: &mut [[u16; MEDIAN_BLOCK]; 9], i: usize, j: usize) {
+    let (a, b) = (v[i], v[j]);
+    for l in 0..MEDIAN_BLOCK {
+        v[i][l] = a[l].min(b[l]);
+        v[j][l] = a[l].max(b[l]);
+    }
+}
+
+/// Output pixels per median block: one 512-bit register of `u16` per window position.
+const MEDIAN_BLOCK: usize = 32;
+
+/// Stage 7 for `MEDIAN_BLOCK` consecutive pixels starting at column `x0` of a row, from the
+/// three input rows around it.
 ///
-/// The median of nine is `median3(max of the column minima, median of the column medians, min of
-/// the column maxima)` once each column is sorted (Paeth's network); each column's sort is shared
-/// by three output pixels.
+/// The nine window values of every pixel are sorted by the `SORT9` network lane-wise
+/// (INVALID = 0xFFFF last), then the lower median of the `n` valid ones, index `(n − 1) / 2`, is
+/// picked without counting: `n ≥ 5` iff `sorted[4]` is valid, `n ≥ 7` iff `sorted[6]` is,
+/// `n = 9` iff `sorted[8]` is.
+#[inline(always)]
+fn median_block(rows: [&[u16]; 3], x0: usize, out: &mut [u16; MEDIAN_BLOCK]) {
+    let mut v = [[0u16; MEDIAN_BLOCK]; 9];
+    for (k, values) in v.iter_mut().enumerate() {
+        let (row, dx) = (rows[k / 3], k % 3);
+        values.copy_from_slice(&row[x0 + dx - 1..][..MEDIAN_BLOCK]);
+    }
+    sort9_lanes(&mut v);
+    for l in 0..MEDIAN_BLOCK {
+        let upper = blend(v[8][l] != INVALID, v[4][l], v[3][l]);
+        let middle = blend(v[6][l] != INVALID, upper, v[2][l]);
+        out[l] = blend(v[4][l] != INVALID, middle, INVALID);
+    }
+}
+
+/// Stage 7 (3×3 median of the valid values, borders kept) and stage 8 (invalid marking).
 #[inline(always)]
 fn finish_image(job: FinishJob<'_>) {
-    let FinishJob { width: w, height: h, median, pre, out, columns } = job;
+    let FinishJob { width: w, height: h, median, pre, out } = job;
     out.copy_from_slice(pre);
     if median && w >= 3 && h >= 3 {
-        let (low, rest) = columns.split_at_mut(w);
-        let (mid, high) = rest.split_at_mut(w);
         for y in 1..h - 1 {
-            let (above, here, below) = (&pre[(y - 1) * w..][..w], &pre[y * w..][..w], &pre[(y + 1) * w..][..w]);
-            for x in 0..w {
-                let (a, b, c) = (above[x], here[x], below[x]);
-                low[x] = a.min(b).min(c);
-                high[x] = a.max(b).max(c);
-                mid[x] = median3(a, b, c);
-            }
+            let rows = [&pre[(y - 1) * w..][..w], &pre[y * w..][..w], &pre[(y + 1) * w..][..w]];
             let row = &mut out[y * w..][..w];
-            for x in 1..w - 1 {
-                let lo = low[x - 1].max(low[x]).max(low[x + 1]);
-                let hi = high[x - 1].min(high[x]).min(high[x + 1]);
-                let me = median3(mid[x - 1], mid[x], mid[x + 1]);
-                row[x] = median3(lo, me, hi);
+            if w - 2 < MEDIAN_BLOCK {
+                // Narrower than a block: the reference's window function, pixel by pixel.
+                for x in 1..w - 1 {
+                    let mut window = [0u16; 9];
+                    for (k, value) in window.iter_mut().enumerate() {
+                        *value = rows[k / 3][x + k % 3 - 1];
+                    }
+                    row[x] = crate::stages::median::median_of_window(window);
+                }
+                continue;
+            }
+            // Blocks from x = 1; the last one is moved left to end at W − 2 (it recomputes a few
+            // pixels, which reads `pre` only and so gives the same values).
+            let mut x0 = 1;
+            loop {
+                let x0_clamped = x0.min(w - 1 - MEDIAN_BLOCK);
+                let mut block = [0u16; MEDIAN_BLOCK];
+                median_block(rows, x0_clamped, &mut block);
+                row[x0_clamped..][..MEDIAN_BLOCK].copy_from_slice(&block);
+                if x0_clamped + MEDIAN_BLOCK >= w - 1 {
+                    break;
+                }
+                x0 += MEDIAN_BLOCK;
             }
         }
     }
@@ -876,6 +1008,56 @@ fn finish_image(job: FinishJob<'_>) {
             // stays INVALID anyway.
             if 16 * x < usize::from(*value) {
                 *value = INVALID;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// By the 0-1 principle a comparator network sorts every input iff it sorts every 0/1 input:
+    /// all 2^9 of them.
+    #[test]
+    fn sort9_sorts_every_zero_one_input() {
+        for bits in 0u32..1 << 9 {
+            let mut v: [u16; 9] = std::array::from_fn(|k| ((bits >> k) & 1) as u16);
+            for &(i, j) in &SORT9 {
+                let (a, b) = (v[i], v[j]);
+                v[i] = a.min(b);
+                v[j] = a.max(b);
+            }
+            assert!(v.is_sorted(), "input {bits:09b} gives {v:?}");
+        }
+    }
+
+    /// The block median against the reference's window function, on windows with every count of
+    /// invalid values, including the block's last lane.
+    #[test]
+    fn median_block_equals_the_window_function() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let width = MEDIAN_BLOCK + 2;
+        for _ in 0..200 {
+            let invalid_per_mille = next() % 1000;
+            let rows: Vec<Vec<u16>> = (0..3)
+                .map(|_| {
+                    (0..width)
+                        .map(|_| if next() % 1000 < invalid_per_mille { INVALID } else { (next() % 40) as u16 })
+                        .collect()
+                })
+                .collect();
+            let mut block = [0u16; MEDIAN_BLOCK];
+            median_block([&rows[0], &rows[1], &rows[2]], 1, &mut block);
+            for (l, &got) in block.iter().enumerate() {
+                let window: [u16; 9] = std::array::from_fn(|k| rows[k / 3][l + k % 3]);
+                assert_eq!(got, crate::stages::median::median_of_window(window), "{window:?}");
             }
         }
     }

@@ -1,8 +1,10 @@
 //! The element type of the path-cost vectors.
 //!
-//! A stored path cost `L_r` is at most `min(Lmax, 64 + 255)` (a matching cost plus the largest
-//! smoothness step `P2eff ≤ 255`), so for `b ≤ 8` it fits a byte and the aggregation runs on
-//! `u8` lanes: twice the disparities per SIMD instruction of `u16` lanes. Saturating byte
+//! A matching cost is at most 255 (`SgmConfig::cost_max`: 64 census bits plus a gradient term
+//! ≤ 191), and a stored path cost `L_r` at most `Lmax`, so for `b ≤ 8` both fit a byte and the
+//! aggregation runs on `u8` lanes: twice the disparities per SIMD instruction of `u16` lanes.
+//! A padding disparity's cost `T::MAX` may equal a real cost of 255 but never undercuts one, so
+//! its path cost is `Lmax` and it still wins no minimum (see [`super::kernels`]). Saturating byte
 //! arithmetic gives exactly the wide-integer results of `SPEC.md` there:
 //!
 //! - `L(d ± 1) + p1` and `M + P2eff` are only ever compared against `L(d) ≤ 255`, so clipping

@@ -56,7 +56,6 @@ pub struct Matcher {
     padded_right: Vec<u8>,
     /// The image after stage 6, before the median.
     pre_median: Vec<u16>,
-    median_columns: Vec<u16>,
     engine: EngineKind,
 }
 
@@ -107,10 +106,15 @@ impl<T: Lane> Engine<T> {
         let params = Params {
             p1: T::from_u16(u16::from(config.p1)),
             path_cost_max: T::from_u16(config.path_cost_max()),
+            gradient_weight: u16::from(config.gradient_cost_weight),
+            gradient_truncation: u16::from(config.gradient_cost_truncation),
+            // ≤ 64 + 191 = 255 for a validated configuration.
+            cost_max: config.cost_max().min(255) as u8,
             p2_effective,
             uniqueness_percent: u32::from(config.uniqueness_percent),
             lr_check: config.lr_check,
             lr_max_diff: u16::from(config.lr_max_diff),
+            lr_lenient: config.lr_lenient,
             subpixel: config.subpixel,
         };
         let (passes, volume) = match config.paths {
@@ -177,7 +181,6 @@ impl Matcher {
             padded_left: vec![0; pad_stride * height],
             padded_right: vec![0; pad_stride * height],
             pre_median: vec![INVALID; width * height],
-            median_columns: vec![0; 3 * width],
             engine,
         })
     }
@@ -211,7 +214,7 @@ impl Matcher {
         engine
             + self.padded_left.capacity()
             + self.padded_right.capacity()
-            + (self.pre_median.capacity() + self.median_columns.capacity()) * size_of::<u16>()
+            + self.pre_median.capacity() * size_of::<u16>()
             + size_of::<Matcher>()
     }
 
@@ -255,7 +258,6 @@ impl Matcher {
             median: self.config.median,
             pre: &self.pre_median,
             out: &mut out.data,
-            columns: &mut self.median_columns,
         };
         // The finishing job never waits on other threads, so it cannot abort.
         let _ = dispatch::run::<u8, 64>(isa, Job::Finish(finish));

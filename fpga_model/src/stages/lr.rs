@@ -32,10 +32,29 @@ pub fn right_disparity(aggregated: &AggregatedVolume) -> Vec<u16> {
     right
 }
 
-/// Keeps a pixel of `disparity` (stage 5 output) if its integer winner `d1` lands inside the
-/// right image and the right view agrees within `max_diff` px: `x − d1 ≥ 0` and
-/// `|d1 − dR(x − d1, y)| ≤ max_diff`. Everything else becomes [`INVALID`].
-pub fn check(disparity: &DisparityImage, winners: &[Winner], right: &[u16], max_diff: u8) -> DisparityImage {
+/// The integer disparities whose right-view match stage 6 consults for a left pixel with integer
+/// winner `d1` and stage-5 value `d16` (1/16 px): `{d1}`, or with `lenient` the floor and the
+/// ceiling of `d16 / 16` (both `d1` when the subpixel offset is 0; `d1` and its neighbour on the
+/// side the offset points to otherwise).
+pub fn candidates(d1: u16, d16: u16, lenient: bool) -> [u16; 2] {
+    if lenient { [d16 / 16, d16.div_ceil(16)] } else { [d1, d1] }
+}
+
+/// Keeps a pixel of `disparity` (stage 5 output) if one of its [`candidates`] `d` lands inside
+/// the right image and the right view agrees within `max_diff` px: `x − d ≥ 0` and
+/// `|d − dR(x − d, y)| ≤ max_diff`. Everything else becomes [`INVALID`].
+///
+/// With `lenient` (OpenCV's rule) a pixel whose subpixel disparity lies between two integers is
+/// also kept when the right pixel next to `x − d1` confirms the other integer: at a slanted or
+/// finely textured surface the right view's winner of one of the two columns is often the
+/// other integer, and the strict check punches holes there that the median cannot close.
+pub fn check(
+    disparity: &DisparityImage,
+    winners: &[Winner],
+    right: &[u16],
+    max_diff: u8,
+    lenient: bool,
+) -> DisparityImage {
     let width = disparity.width;
     let mut out = disparity.clone();
     for y in 0..disparity.height {
@@ -44,8 +63,10 @@ pub fn check(disparity: &DisparityImage, winners: &[Winner], right: &[u16], max_
             if out.data[i] == INVALID {
                 continue;
             }
-            let d1 = usize::from(winners[i].disparity);
-            let consistent = x >= d1 && right[y * width + (x - d1)].abs_diff(d1 as u16) <= u16::from(max_diff);
+            let consistent = candidates(winners[i].disparity, out.data[i], lenient).iter().any(|&d| {
+                let d = usize::from(d);
+                x >= d && right[y * width + (x - d)].abs_diff(d as u16) <= u16::from(max_diff)
+            });
             if !consistent {
                 out.data[i] = INVALID;
             }

@@ -1,11 +1,31 @@
-//! Stage 7 of `SPEC.md`: 3×3 median of the disparity image.
+//! Stage 7 of `SPEC.md`: 3×3 median of the valid disparities.
 
-use crate::image::DisparityImage;
+use crate::image::{DisparityImage, INVALID};
 
-/// Each pixel not on the image border becomes the 5th smallest of its 3×3 neighbourhood; the
-/// first and last row and column keep their value (the FPGA's two line buffers have no
-/// neighbours to offer there). `INVALID = 0xFFFF` is just the largest value, so an isolated
-/// invalid pixel is filled and a pixel with five or more invalid neighbours becomes invalid.
+/// Valid values a 3×3 window needs for its pixel to stay (or become) valid: a majority.
+pub const MIN_VALID: usize = 5;
+
+/// The output of one window of nine values: with `n` valid (non-[`INVALID`]) values, the
+/// `ceil(n/2)`-th smallest of them (the lower median) if `n ≥ 5`, else [`INVALID`].
+///
+/// Sorting the nine values with `INVALID = 0xFFFF` as the largest, that is the element at index
+/// `(n − 1) / 2`: one sorting network plus a 3-way multiplexer (index 2, 3 or 4) in hardware.
+/// Taking the median of the valid values only (instead of the 5th of all nine, which for
+/// `n < 9` is pulled upwards by the invalid ones) removes a bias towards large disparities,
+/// i.e. towards the foreground, just where the left-right check left holes: at depth edges.
+pub fn median_of_window(mut window: [u16; 9]) -> u16 {
+    let valid = window.iter().filter(|&&v| v != INVALID).count();
+    if valid < MIN_VALID {
+        return INVALID;
+    }
+    window.sort_unstable();
+    window[(valid - 1) / 2]
+}
+
+/// Each pixel not on the image border becomes [`median_of_window`] of its 3×3 neighbourhood;
+/// the first and last row and column keep their value (the FPGA's two line buffers have no
+/// neighbours to offer there). So an isolated invalid pixel is filled, and a pixel with five or
+/// more invalid neighbours becomes invalid.
 pub fn median3x3(disparity: &DisparityImage) -> DisparityImage {
     let (width, height) = (disparity.width, disparity.height);
     let mut out = disparity.clone();
@@ -19,8 +39,7 @@ pub fn median3x3(disparity: &DisparityImage) -> DisparityImage {
                     k += 1;
                 }
             }
-            window.sort_unstable();
-            out.data[y * width + x] = window[4];
+            out.data[y * width + x] = median_of_window(window);
         }
     }
     out

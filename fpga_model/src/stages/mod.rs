@@ -5,12 +5,12 @@
 //! | `SPEC.md` stage | function |
 //! |---|---|
 //! | 1 census | [`census::transform`] |
-//! | 2 matching cost | [`cost::volume`] |
+//! | 2 matching cost | [`cost::horizontal_gradient`], [`cost::gradient_term`], [`cost::volume`] |
 //! | 3 path aggregation | [`aggregate::path`], [`aggregate::sum`] |
 //! | 4 winner takes all + uniqueness | [`select::winner`] |
 //! | 5 subpixel | [`select::subpixel`] |
-//! | 6 left-right check | [`lr::right_disparity`], [`lr::check`] |
-//! | 7 3×3 median | [`median::median3x3`] |
+//! | 6 left-right check | [`lr::right_disparity`], [`lr::candidates`], [`lr::check`] |
+//! | 7 3×3 median | [`median::median_of_window`], [`median::median3x3`] |
 //! | 8 invalid marking | [`select::mark_invalid`] |
 
 pub mod aggregate;
@@ -30,7 +30,8 @@ pub struct Volume<T> {
     pub data: Vec<T>,
 }
 
-/// Stage 2 output: matching costs `C(x, y, d)`, at most 64 (the census word width).
+/// Stage 2 output: matching costs `C(x, y, d)`, at most 255 (`SgmConfig::cost_max`: census bits
+/// ≤ 64 plus the gradient term ≤ 191).
 pub type CostVolume = Volume<u8>;
 /// Stage 3 output of one direction: path costs `L_r(x, y, d)`, saturated to `b` bits.
 pub type PathCostVolume = Volume<u16>;
