@@ -6,26 +6,15 @@
 
 #![allow(clippy::unwrap_used, reason = "test helpers: a panic is a failed test with its message")]
 
-use fpga_model::eval::{DEFAULT_THRESHOLD_PX, Scene, default_data_root};
-use fpga_model::{SgmConfig, fast, io};
+mod common;
+
+use common::{ours_percent, scenes};
+use fpga_model::eval::DEFAULT_THRESHOLD_PX;
 
 /// Regression thresholds in percent: measured with the default configuration plus 0.5
 /// percentage points (so a real loss of accuracy fails, noise-free as the core is integer).
 /// Measured: tsukuba 3.61, teddy 6.80, cones 4.44, Reindeer 6.47.
 const THRESHOLDS_PERCENT: [(&str, f64); 4] = [("tsukuba", 4.1), ("teddy", 7.3), ("cones", 4.9), ("Reindeer", 7.0)];
-
-fn scenes() -> Vec<Scene> {
-    Scene::load_all(default_data_root()).unwrap()
-}
-
-/// Our bad-pixel rate in percent with the CLI's default configuration for the scene's D.
-fn ours_percent(scene: &Scene) -> f64 {
-    let config = SgmConfig { disparities: scene.disparities, ..Default::default() };
-    let threads = std::thread::available_parallelism().map_or(1, usize::from);
-    let mut matcher = fast::Matcher::new(config, scene.left.width, scene.left.height, threads).unwrap();
-    let disparity = matcher.compute(&scene.left, &scene.right).unwrap();
-    100.0 * scene.bad_pixel_rate(&io::disparity_to_pfm_values(&disparity), DEFAULT_THRESHOLD_PX).unwrap()
-}
 
 #[test]
 fn default_config_regression() {
