@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """OpenCV StereoSGBM as the comparison for the FPGA SGM core model.
 
-Runs inside the project venv (`.venv`, created by `scripts/test`; pins in requirements.txt).
+Runs inside the project venv (`.venv`, created by `scripts/test`; pins in the project-level
+scripts/requirements.txt).
 
 Modes:
   accuracy  For each --scene NAME LEFT RIGHT D, run StereoSGBM over the grid of documented

@@ -18,7 +18,8 @@ use common::{ours_percent, scenes};
 use fpga_model::eval::{DEFAULT_THRESHOLD_PX, Scene};
 use fpga_model::io;
 
-/// The project venv's python (created by `scripts/test` from `scripts/requirements.txt`).
+/// The project venv's python (created by `scripts/test` from the project-level
+/// `scripts/requirements.txt`).
 fn venv_python() -> PathBuf {
     let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/python");
     assert!(

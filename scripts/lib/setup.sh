@@ -19,11 +19,12 @@ ensure_system_packages() {
     fi
 }
 
-# The Python venv of the OpenCV comparison (fpga_model/scripts/opencv_sgbm.py, used by
-# fpga_model's tests/middlebury.rs and benches/vs_opencv.rs): `.venv` at the project root
-# (gitignored) with the exact pins of fpga_model/scripts/requirements.txt. A stamp holding the
+# The project's Python venv: `.venv` at the project root (gitignored) with the exact pins of
+# scripts/requirements.txt. Used by the OpenCV comparison (fpga_model/scripts/opencv_sgbm.py,
+# run by fpga_model's tests/middlebury.rs and benches/vs_opencv.rs) and by the GTSAM reference
+# of the pose-graph optimizer (onboard/graph/scripts/gtsam_reference.py). A stamp holding the
 # requirements' hash makes a second run install nothing, and a change of pins reinstall.
-PYTHON_REQUIREMENTS=fpga_model/scripts/requirements.txt
+PYTHON_REQUIREMENTS=scripts/requirements.txt
 
 ensure_python_venv() {
     local venv=.venv
@@ -39,6 +40,6 @@ ensure_python_venv() {
     fi
     "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PYTHON_REQUIREMENTS"
     # Fail here, not deep inside a test, if the wheels do not import on this machine.
-    "$venv/bin/python" -c "import cv2, numpy"
+    "$venv/bin/python" -c "import cv2, numpy, gtsam"
     echo "$want" >"$stamp"
 }
