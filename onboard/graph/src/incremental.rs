@@ -329,3 +329,121 @@ impl Isam {
         self.var_factors.truncate(n_before);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DMatrix, DVector};
+
+    use super::*;
+    use crate::factor::NoiseModel;
+
+    /// Deterministic pseudo-random numbers in [-1, 1) (splitmix64).
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^= z >> 31;
+            (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        }
+
+        fn vector(&mut self, scale: f64) -> Vector6<f64> {
+            Vector6::from_fn(|_, _| self.next() * scale)
+        }
+    }
+
+    /// The dense solution of the smoother's current linear system (all factors at their stored
+    /// linearization points), and the dense covariance.
+    fn dense_solution(isam: &Isam) -> (Vec<Vector6<f64>>, DMatrix<f64>) {
+        let n = isam.theta.len();
+        let mut h = DMatrix::<f64>::zeros(6 * n, 6 * n);
+        let mut r = DVector::<f64>::zeros(6 * n);
+        for l in &isam.lin {
+            for a in 0..l.arity {
+                let mut ra = r.fixed_rows_mut::<6>(6 * l.vars[a]);
+                ra += l.jacobians[a].transpose() * l.rhs;
+                for b in 0..l.arity {
+                    let mut block = h.fixed_view_mut::<6, 6>(6 * l.vars[a], 6 * l.vars[b]);
+                    block += l.jacobians[a].transpose() * l.jacobians[b];
+                }
+            }
+        }
+        let covariance = h.clone().try_inverse().unwrap();
+        let x = h.cholesky().unwrap().solve(&r);
+        ((0..n).map(|v| x.fixed_rows::<6>(6 * v).into_owned()).collect(), covariance)
+    }
+
+    /// A trajectory with odometry and random loop closures, fed one pose at a time. With
+    /// relinearization off and the wildfire threshold at zero, the Bayes tree must reproduce the
+    /// dense solution of the same linear system after every update, through all the top
+    /// re-eliminations, orphan re-attachments and reorderings.
+    #[test]
+    fn tree_solution_matches_dense_solve_after_every_update() {
+        let mut rng = Rng(7);
+        let params = IsamParams { relinearize_threshold: f64::INFINITY, relinearize_skip: 1, wildfire_threshold: 0.0 };
+        let mut isam = Isam::new(params);
+        let noise = NoiseModel::from_sigmas([0.05, 0.05, 0.05, 0.02, 0.02, 0.02]).unwrap();
+        let mut truth = vec![Pose3::identity()];
+        isam.update(vec![Factor::prior(Key(0), truth[0], noise.clone())], &[(Key(0), truth[0])]).unwrap();
+        let mut saw_orphans = false;
+        for k in 1..60usize {
+            let step = se3::exp(&(Vector6::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.3) + rng.vector(0.1)));
+            truth.push(truth[k - 1] * step);
+            let measured = |i: usize, rng: &mut Rng| se3::retract(&(truth[i].inverse() * truth[k]), &rng.vector(0.02));
+            let mut factors =
+                vec![Factor::between(Key(k as u64 - 1), Key(k as u64), measured(k - 1, &mut rng), noise.clone())];
+            if k > 5 && k % 3 == 0 {
+                let i = ((rng.next() + 1.0) * 0.5 * (k - 3) as f64) as usize;
+                factors.push(Factor::between(Key(i as u64), Key(k as u64), measured(i, &mut rng), noise.clone()));
+            }
+            let initial = se3::retract(&truth[k], &rng.vector(0.1));
+            let stats = isam.update(factors, &[(Key(k as u64), initial)]).unwrap();
+            saw_orphans |= stats.orphans > 0;
+            let (dense, covariance) = dense_solution(&isam);
+            for (v, expected) in dense.iter().enumerate() {
+                assert!((isam.delta[v] - expected).amax() < 1e-8, "update {k}, variable {v}");
+            }
+            if k % 10 == 0 {
+                let keys: Vec<Key> = (0..=k as u64).map(Key).collect();
+                let marginals = isam.marginal_covariances(&keys).unwrap();
+                for (v, marginal) in marginals.iter().enumerate() {
+                    let expected = covariance.fixed_view::<6, 6>(6 * v, 6 * v).into_owned();
+                    assert!((marginal - expected).amax() < 1e-9 * expected.amax(), "update {k}, marginal {v}");
+                }
+            }
+        }
+        assert!(saw_orphans, "the test must exercise partial re-elimination");
+    }
+
+    #[test]
+    fn bad_updates_are_rejected_and_change_nothing() {
+        let noise = NoiseModel::from_sigmas([0.1; 6]).unwrap();
+        let mut isam = Isam::new(IsamParams::default());
+        let x1 = se3::exp(&Vector6::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.1));
+        isam.update(
+            vec![
+                Factor::prior(Key(0), Pose3::identity(), noise.clone()),
+                Factor::between(Key(0), Key(1), x1, noise.clone()),
+            ],
+            &[(Key(0), Pose3::identity()), (Key(1), x1)],
+        )
+        .unwrap();
+        let before = isam.estimates();
+        // A variable with no factor tying it to the graph.
+        assert_eq!(isam.update(vec![], &[(Key(2), x1)]), Err(GraphError::Unconstrained(Key(2))));
+        // Two new variables connected only to each other.
+        let island = vec![Factor::between(Key(5), Key(6), x1, noise.clone())];
+        assert_eq!(isam.update(island, &[(Key(5), x1), (Key(6), x1)]), Err(GraphError::Unconstrained(Key(5))));
+        assert_eq!(isam.update(vec![], &[(Key(1), x1)]), Err(GraphError::DuplicateVariable(Key(1))));
+        let dangling = vec![Factor::between(Key(1), Key(9), x1, noise.clone())];
+        assert_eq!(isam.update(dangling, &[]), Err(GraphError::UnknownVariable(Key(9))));
+        assert_eq!(isam.estimates(), before);
+        assert_eq!(isam.factors().len(), 2);
+        // A valid update still works afterwards.
+        isam.update(vec![Factor::between(Key(1), Key(2), x1, noise)], &[(Key(2), x1 * x1)]).unwrap();
+        assert_eq!(isam.num_variables(), 3);
+    }
+}

@@ -1,0 +1,88 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+//! `onboard posegraph` end to end: the real binary on the shared g2o benchmarks.
+
+use std::process::Command;
+
+fn data(name: &str) -> String {
+    format!("{}/../../../shared/data/posegraph/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+fn onboard(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_onboard")).args(args).output().unwrap()
+}
+
+fn json_of(output: &std::process::Output) -> serde_json::Value {
+    assert!(output.status.success(), "stderr: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).unwrap()
+}
+
+#[test]
+fn batch_json_reports_gtsam_comparable_costs_and_writes_the_result() {
+    let dir = std::env::temp_dir().join(format!("onboard-posegraph-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("smallGrid3D_opt.g2o");
+    let output = onboard(&["posegraph", "--in", &data("smallGrid3D.g2o"), "--out", out.to_str().unwrap(), "--json"]);
+    let report = json_of(&output);
+    // GTSAM 4.3: graph.error(initial) = 83894.33343553309, LM final 517.9253346774361.
+    let initial = report["initial_cost"].as_f64().unwrap();
+    let final_cost = report["final_cost"].as_f64().unwrap();
+    assert!((initial - 83894.33343553309).abs() < 1e-6 * initial);
+    assert!((final_cost - 517.9253346774361).abs() < 1e-3 * final_cost);
+    assert!(report["iterations"].as_u64().unwrap() >= 1);
+    assert!(report["time_ms"].as_f64().unwrap() > 0.0);
+
+    // The written graph carries the optimized poses: optimizing it again starts at the optimum.
+    let again = json_of(&onboard(&["posegraph", "--in", out.to_str().unwrap(), "--json"]));
+    let restart = again["initial_cost"].as_f64().unwrap();
+    assert!((restart - final_cost).abs() < 1e-9 * final_cost, "{restart} vs {final_cost}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn incremental_mode_and_human_summary() {
+    let report = json_of(&onboard(&["posegraph", "--in", &data("smallGrid3D.g2o"), "--incremental", "--json"]));
+    assert_eq!(report["mode"], "incremental");
+    assert_eq!(report["iterations"], 125);
+    let final_cost = report["final_cost"].as_f64().unwrap();
+    assert!((final_cost - 517.9253346774361).abs() < 1e-3 * final_cost, "{final_cost}");
+    assert!(report["median_update_ms"].as_f64().unwrap() <= report["max_update_ms"].as_f64().unwrap());
+
+    let output = onboard(&["posegraph", "--in", &data("tinyGrid3D.g2o")]);
+    assert!(output.status.success());
+    let text = String::from_utf8(output.stdout).unwrap();
+    assert!(text.contains("initial cost  143.317874"), "{text}");
+    assert!(text.contains("final cost    9.313910"), "{text}");
+}
+
+#[test]
+fn two_dimensional_and_edge_only_files_are_lifted() {
+    // CSAIL has no vertex records: initial values come from the odometry chain.
+    let report = json_of(&onboard(&["posegraph", "--in", &data("CSAIL.g2o"), "--json"]));
+    assert_eq!(report["vertices"], 1045);
+    assert!(report["final_cost"].as_f64().unwrap() < 1e-3 * report["initial_cost"].as_f64().unwrap());
+    let robust = json_of(&onboard(&["posegraph", "--in", &data("intel.g2o"), "--robust", "cauchy:3", "--json"]));
+    assert!(robust["final_cost"].as_f64().unwrap() < robust["initial_cost"].as_f64().unwrap());
+}
+
+#[test]
+fn bad_input_gives_a_clear_error() {
+    let missing = onboard(&["posegraph", "--in", "/nonexistent/graph.g2o"]);
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("cannot read /nonexistent/graph.g2o"));
+
+    let usage = onboard(&["posegraph", "--in", &data("tinyGrid3D.g2o"), "--robust", "tukey:3"]);
+    assert_eq!(usage.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&usage.stderr).contains("unknown kernel"));
+
+    let dir = std::env::temp_dir().join(format!("onboard-posegraph-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.g2o");
+    std::fs::write(&bad, "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nEDGE_SE3:QUAT 0 1 nan\n").unwrap();
+    let parsed = onboard(&["posegraph", "--in", bad.to_str().unwrap()]);
+    assert_eq!(parsed.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&parsed.stderr).contains("line 2"), "{}", String::from_utf8_lossy(&parsed.stderr));
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    let unknown = onboard(&["fly"]);
+    assert_eq!(unknown.status.code(), Some(2));
+}
