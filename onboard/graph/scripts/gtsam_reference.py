@@ -19,10 +19,15 @@ Subcommands:
              optimize() only. --robust wraps the loop closures (between factors with
              |i - j| != 1) in a Cauchy or Huber M-estimator.
   isam2      --in G.g2o [--relinearize-threshold 0.1] [--relinearize-skip 1]
-             Feeds the graph to ISAM2 one pose at a time in key order; per-update times.
-  marginals  --in G.g2o --keys 0,5,...
+             Feeds the graph to ISAM2 one pose at a time in key order; per-update times and
+             the variables re-eliminated (summed over the updates).
+  marginals  --in G.g2o (--keys 0,5,... | --all) [--runs N] [--no-covariances]
              Batch LM result, then marginal covariances, converted to OUR tangent order
-             [translation, rotation].
+             [translation, rotation]. --all: every pose. marginals_ms: wall time of
+             gtsam.Marginals(graph, result) plus marginalCovariance of every requested key
+             (the LM excluded), repeated --runs times (default 1) on the same LM result;
+             marginals_median_ms is their median. --no-covariances leaves the matrices and
+             poses out of the JSON (for timing all keys of a large graph).
   error      --in G.g2o --values V.g2o
              graph.error at the poses of another g2o file (e.g. our optimizer's output).
   gt-rmse    --in sphere2500.g2o --gt sphere2500_groundtruth.g2o
@@ -228,6 +233,7 @@ def cmd_isam2(args):
     isam2 = gtsam.ISAM2(params)
 
     update_ms = []
+    reeliminated = 0
     for n, k in enumerate(keys):
         factors = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
@@ -244,8 +250,9 @@ def cmd_isam2(args):
         for factor in by_max_key[k]:
             factors.add(factor)
         t0 = time.perf_counter()
-        isam2.update(factors, values)
+        result = isam2.update(factors, values)
         update_ms.append((time.perf_counter() - t0) * 1e3)
+        reeliminated += result.getVariablesReeliminated()
 
     final_cost = graph.error(isam2.calculateEstimate())
     for _ in range(3):
@@ -267,29 +274,44 @@ def cmd_isam2(args):
         "total_ms": float(ms.sum()),
         "final_cost": final_cost,
         "final_cost_after_extra_updates": final_cost_extra,
+        # ISAM2Result.variablesReeliminated summed over the updates: the variables of the
+        # re-eliminated top plus the new ones, as our UpdateStats counts them. (Its
+        # variablesRelinearized is not reported: GTSAM 4.x sets it to the number of marked keys,
+        # which includes every key of the new factors, so it does not count relinearizations.)
+        "reeliminated_variables": reeliminated,
         "update_ms": [float(x) for x in update_ms],
     }
 
 
 def cmd_marginals(args):
     graph, initial, _ = load_problem(args.input)
-    try:
-        keys = [int(k) for k in args.keys.split(",") if k.strip() != ""]
-    except ValueError:
-        raise CliError(f"--keys must be a comma-separated list of integers, got {args.keys!r}")
-    if not keys:
-        raise CliError("--keys is empty")
+    if args.all:
+        keys = pose_keys(initial)
+    else:
+        try:
+            keys = [int(k) for k in args.keys.split(",") if k.strip() != ""]
+        except ValueError:
+            raise CliError(f"--keys must be a comma-separated list of integers, got {args.keys!r}")
+        if not keys:
+            raise CliError("--keys is empty")
     missing = [k for k in keys if not initial.exists(k)]
     if missing:
         raise CliError(f"keys not in {args.input}: {missing}")
     result, iterations, elapsed_ms = run_lm(graph, initial)
-    marginals = gtsam.Marginals(graph, result)
+    marginals_ms = []
+    for _ in range(args.runs):
+        # Timed as a user of the marginals pays for them: linearize and factor at the result
+        # (the constructor), then one query per key; the conversion to our order is left out.
+        t0 = time.perf_counter()
+        marginals = gtsam.Marginals(graph, result)
+        sigmas = [marginals.marginalCovariance(k) for k in keys]
+        marginals_ms.append((time.perf_counter() - t0) * 1e3)
     covariances = {}
     poses = {}
-    for k in keys:
-        sigma = np.asarray(marginals.marginalCovariance(k))
-        covariances[str(k)] = (PERM @ sigma @ PERM.T).tolist()
-        poses[str(k)] = pose_list(result.atPose3(k))
+    if not args.no_covariances:
+        for k, sigma in zip(keys, sigmas):
+            covariances[str(k)] = (PERM @ np.asarray(sigma) @ PERM.T).tolist()
+            poses[str(k)] = pose_list(result.atPose3(k))
     return {
         "dataset": os.path.basename(args.input),
         "keys": keys,
@@ -301,6 +323,8 @@ def cmd_marginals(args):
         "pose_order": "x y z qw qx qy qz",
         "covariances": covariances,
         "poses": poses,
+        "marginals_ms": marginals_ms,
+        "marginals_median_ms": float(np.median(marginals_ms)),
     }
 
 
@@ -457,7 +481,11 @@ def main(argv=None):
 
     p = sub.add_parser("marginals", help="marginal covariances after batch LM")
     p.add_argument("--in", dest="input", required=True, metavar="G.g2o")
-    p.add_argument("--keys", required=True, metavar="0,5,...")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--keys", metavar="0,5,...")
+    which.add_argument("--all", action="store_true", help="every pose")
+    p.add_argument("--runs", type=int, default=1, help="timed repetitions of the marginals")
+    p.add_argument("--no-covariances", action="store_true", help="timing only: no matrices")
     p.set_defaults(func=cmd_marginals)
 
     p = sub.add_parser("error", help="graph.error at the poses of another g2o file")
@@ -473,6 +501,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if getattr(args, "relinearize_skip", 1) < 1:
         parser.error("--relinearize-skip must be >= 1")
+    if getattr(args, "runs", 1) < 1:
+        parser.error("--runs must be >= 1")
     try:
         out = args.func(args)
     except CliError as exc:
