@@ -16,7 +16,8 @@ impl Trajectory {
             return Err(TrajectoryError::LengthMismatch { stamps: stamps_s.len(), poses: poses.len() });
         }
         for (i, w) in stamps_s.windows(2).enumerate() {
-            if !(w[1] > w[0]) {
+            // `partial_cmp` rather than `!(w[1] > w[0])` (clippy::neg_cmp_op_on_partial_ord); a NaN pair fails too.
+            if w[1].partial_cmp(&w[0]) != Some(core::cmp::Ordering::Greater) {
                 return Err(TrajectoryError::NotIncreasing { index: i + 1 });
             }
         }

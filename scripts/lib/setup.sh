@@ -3,7 +3,9 @@
 
 # Debian packages the tests use:
 # - iproute2: `ip link add ... type vcan` for the SocketCAN test, where the kernel allows it.
-SYSTEM_PACKAGES=(iproute2)
+# - fonts-dejavu-core: DejaVu Sans, the TTF that eval's plots register at run time (plotters'
+#   ab_glyph backend loads no system fonts, and the repository ships no font file).
+SYSTEM_PACKAGES=(iproute2 fonts-dejavu-core)
 
 ensure_system_packages() {
     local missing=()
@@ -40,6 +42,6 @@ ensure_python_venv() {
     fi
     "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PYTHON_REQUIREMENTS"
     # Fail here, not deep inside a test, if the wheels do not import on this machine.
-    "$venv/bin/python" -c "import cv2, numpy, gtsam"
+    "$venv/bin/python" -c "import cv2, numpy, gtsam, evo"
     echo "$want" >"$stamp"
 }
