@@ -3,6 +3,7 @@
 
 use nalgebra::{Matrix6, Vector6};
 
+use crate::anchoring::Anchoring;
 use crate::bayes_tree::BayesTree;
 use crate::error::GraphError;
 use crate::factor::{Factor, Key};
@@ -97,29 +98,12 @@ pub(crate) fn linearize_into(factor: &Factor, vars: [usize; 2], poses: &[Pose3])
 /// Checks that the graph is positive definite in structure: every variable is reachable from
 /// a prior through factors (otherwise its gauge is free and Cholesky would fail).
 pub(crate) fn check_anchored(factors: &[Factor], indices: &[[usize; 2]], values: &Values) -> Result<(), GraphError> {
-    let n = values.len();
-    let mut parent: Vec<usize> = (0..=n).collect();
-    fn find(parent: &mut [usize], mut x: usize) -> usize {
-        while parent[x] != x {
-            parent[x] = parent[parent[x]];
-            x = parent[x];
-        }
-        x
-    }
-    let anchor = n;
+    let mut anchoring = Anchoring::new(values.len());
     for (f, &[a, b]) in factors.iter().zip(indices) {
-        let (ra, rb) = if f.arity() == 1 {
-            (find(&mut parent, a), find(&mut parent, anchor))
-        } else {
-            (find(&mut parent, a), find(&mut parent, b))
-        };
-        parent[ra] = rb;
+        anchoring.join(a, if f.arity() == 1 { anchoring.anchor() } else { b });
     }
-    let root = find(&mut parent, anchor);
-    for v in 0..n {
-        if find(&mut parent, v) != root {
-            return Err(GraphError::Unconstrained(values.keys()[v]));
-        }
+    if let Some(v) = (0..values.len()).find(|&v| !anchoring.is_anchored(v)) {
+        return Err(GraphError::Unconstrained(values.keys()[v]));
     }
     Ok(())
 }

@@ -186,8 +186,7 @@ pub(crate) struct BayesTree {
     /// Elimination position of each variable; later eliminations get larger numbers.
     pub position: Vec<u64>,
     next_position: u64,
-    /// Scratch arrays over variables.
-    slot: Vec<usize>,
+    /// Scratch arrays over variables (the fronts' slots live in `scratch`).
     mark: Vec<usize>,
     scratch: Scratch,
 }
@@ -197,7 +196,6 @@ impl BayesTree {
         if self.var_clique.len() < n {
             self.var_clique.resize(n, NONE);
             self.position.resize(n, 0);
-            self.slot.resize(n, 0);
             self.mark.resize(n, NONE);
             self.scratch.ensure_vars(n);
         }
@@ -230,7 +228,7 @@ impl BayesTree {
         for m in self.mark.iter_mut() {
             *m = NONE;
         }
-        eliminate_symbolic(order, &self.position, factors, lin, &orphan_refs, &mut self.slot, &mut self.mark)
+        eliminate_symbolic(order, &self.position, factors, lin, &orphan_refs, &mut self.scratch.slot, &mut self.mark)
     }
 
     /// Numeric factorization of new symbolic cliques (postorder), reading orphans' cached factors.
@@ -423,7 +421,7 @@ impl BayesTree {
             std::cmp::Reverse(self.clique(c).frontals.last().map_or(0, |&v| self.position[v]))
         });
         let mut sigma: Vec<Option<DMatrix<f64>>> = vec![None; self.cliques.len()];
-        let mut slot = std::mem::take(&mut self.slot);
+        let mut slot = std::mem::take(&mut self.scratch.slot);
         for &c in &list {
             let clique = self.clique(c);
             let s = clique.separator.len();
@@ -444,7 +442,7 @@ impl BayesTree {
             }
             sigma[c] = Some(linear::front_covariance(&clique.conditional, &sigma_ss));
         }
-        self.slot = slot;
+        self.scratch.slot = slot;
         vars.iter()
             .map(|&v| {
                 let c = self.var_clique[v];

@@ -22,6 +22,7 @@
 
 use nalgebra::{Matrix6, Vector6};
 
+use crate::anchoring::Anchoring;
 use crate::batch::linearize_into;
 use crate::bayes_tree::{BayesTree, NONE};
 use crate::error::GraphError;
@@ -134,7 +135,7 @@ impl Isam {
         let mut relinearized: Vec<(usize, Pose3, Vector6<f64>)> = Vec::new();
         if relinearize {
             for v in 0..n_before {
-                if se3::max_abs(&self.delta[v]) > self.params.relinearize_threshold {
+                if self.delta[v].amax() > self.params.relinearize_threshold {
                     relinearized.push((v, self.theta.poses()[v], self.delta[v]));
                     let moved = se3::retract(&self.theta.poses()[v], &self.delta[v]);
                     self.theta.poses_mut()[v] = moved;
@@ -187,7 +188,7 @@ impl Isam {
         let marked = changed_factors
             .iter()
             .chain(&new_ids)
-            .flat_map(|&f| self.lin[f].vars().to_vec())
+            .flat_map(|&f| self.lin[f].vars().iter().copied())
             .filter(|&v| v < n_before)
             .map(|v| self.tree.var_clique[v])
             .filter(|&c| c != NONE);
@@ -266,16 +267,9 @@ impl Isam {
                 return Err(GraphError::NonFinite(key));
             }
         }
-        // Union-find over the new variables plus one node standing for "anchored".
-        let anchor = new_values.len();
-        let mut parent: Vec<usize> = (0..=anchor).collect();
-        fn find(parent: &mut [usize], mut x: usize) -> usize {
-            while parent[x] != x {
-                parent[x] = parent[parent[x]];
-                x = parent[x];
-            }
-            x
-        }
+        // New variables are nodes 0..n; existing variables count as anchored.
+        let mut anchoring = Anchoring::new(new_values.len());
+        let anchor = anchoring.anchor();
         for factor in new_factors {
             let mut nodes = [anchor; 2];
             for (k, &key) in factor.keys().iter().enumerate() {
@@ -286,14 +280,11 @@ impl Isam {
                 };
             }
             // A prior anchors its variable; a between factor joins its two ends.
-            let (a, b) = (find(&mut parent, nodes[0]), find(&mut parent, nodes[1]));
-            parent[a] = b;
+            anchoring.join(nodes[0], nodes[1]);
         }
-        let root = find(&mut parent, anchor);
-        for (i, &(key, _)) in new_values.iter().enumerate() {
-            if find(&mut parent, i) != root {
-                return Err(GraphError::Unconstrained(key));
-            }
+        if let Some((key, _)) = new_values.iter().enumerate().find(|(i, _)| !anchoring.is_anchored(*i)).map(|(_, v)| v)
+        {
+            return Err(GraphError::Unconstrained(*key));
         }
         Ok(())
     }

@@ -12,6 +12,7 @@
 //!   GTSAM's `BetweenFactor<Pose3>`; robust kernels replace `½ d²` (with `d² = eᵀ Ω e`) by
 //!   `ρ(d)`, as GTSAM's `noiseModel::Robust` does.
 
+mod anchoring;
 pub mod batch;
 mod bayes_tree;
 pub mod dataset;

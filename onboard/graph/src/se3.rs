@@ -151,8 +151,3 @@ pub fn right_jacobian(xi: &Vector6<f64>) -> Matrix6<f64> {
 pub fn right_jacobian_inv(xi: &Vector6<f64>) -> Matrix6<f64> {
     left_jacobian_inv(&-xi)
 }
-
-/// The largest absolute component of a tangent vector (m or rad), the relinearization measure.
-pub fn max_abs(xi: &Vector6<f64>) -> f64 {
-    xi.amax()
-}
