@@ -106,6 +106,19 @@ pub struct Stats {
 }
 
 impl Stats {
+    /// The statistics under evo's names, in evo's order.
+    pub fn named(&self) -> [(&'static str, f64); 7] {
+        [
+            ("rmse", self.rmse),
+            ("mean", self.mean),
+            ("median", self.median),
+            ("std", self.std),
+            ("min", self.min),
+            ("max", self.max),
+            ("sse", self.sse),
+        ]
+    }
+
     /// `None` for no values.
     pub fn from_errors(errors: &[f64]) -> Option<Self> {
         if errors.is_empty() {

@@ -78,15 +78,7 @@ fn compare(case: &str, ours: &Stats, evo: &Value) -> f64 {
     assert_eq!(ours.count as u64, evo["pairs"].as_u64().unwrap(), "{case}: pair count");
     let stats = &evo["stats"];
     let mut worst = 0.0_f64;
-    for (name, value) in [
-        ("rmse", ours.rmse),
-        ("mean", ours.mean),
-        ("median", ours.median),
-        ("std", ours.std),
-        ("min", ours.min),
-        ("max", ours.max),
-        ("sse", ours.sse),
-    ] {
+    for (name, value) in ours.named() {
         let theirs = stats[name].as_f64().unwrap();
         let difference = relative_difference(value, theirs);
         assert!(

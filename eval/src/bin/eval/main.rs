@@ -275,31 +275,14 @@ fn read_trajectory_rows(path: &Path, format: Option<Format>, times: Option<&Path
 }
 
 fn stats_json(stats: &Stats) -> serde_json::Map<String, serde_json::Value> {
-    let value = json!({
-        "rmse": stats.rmse,
-        "mean": stats.mean,
-        "median": stats.median,
-        "std": stats.std,
-        "min": stats.min,
-        "max": stats.max,
-        "sse": stats.sse,
-        "pairs": stats.count,
-    });
-    match value {
-        serde_json::Value::Object(map) => map,
-        _ => serde_json::Map::new(),
-    }
+    let mut map: serde_json::Map<String, serde_json::Value> =
+        stats.named().into_iter().map(|(name, v)| (name.to_owned(), v.into())).collect();
+    map.insert("pairs".to_owned(), stats.count.into());
+    map
 }
 
 fn print_stats(stats: &Stats, unit: &str) {
-    for (name, v) in [
-        ("rmse", stats.rmse),
-        ("mean", stats.mean),
-        ("median", stats.median),
-        ("std", stats.std),
-        ("min", stats.min),
-        ("max", stats.max),
-    ] {
+    for (name, v) in stats.named().into_iter().filter(|(name, _)| *name != "sse") {
         println!("  {name:<8}{v:>14.6} {unit}");
     }
     let squared = if unit.is_empty() { String::new() } else { format!("{unit}²") };
