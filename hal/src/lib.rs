@@ -5,5 +5,6 @@ pub mod can;
 pub mod emulator;
 pub mod keyfile;
 pub mod link;
+pub mod sensor;
 pub mod serial;
 pub mod udp;

@@ -1,0 +1,152 @@
+//! Sensor interfaces: what a rover's drivers deliver to the on-board software, whatever is behind
+//! them (the real cameras and IMU, the simulator, or a recorded dataset).
+//!
+//! # Frames and units
+//!
+//! - Body frame `body`: x forward, y left, z up; it is also the IMU frame (as in EuRoC, where the
+//!   body frame is the IMU frame).
+//! - Camera frame `cam`: the optical frame of the *left* rectified camera, x right, y down, z
+//!   along the optical axis. The right camera sits at `+baseline_m` along the left camera's x.
+//! - Timestamps are nanoseconds on the robot's clock (`stamp_ns`); a stereo frame's stamp is its
+//!   capture (mid-exposure) time.
+//!
+//! A [`SensorSource`] yields events in non-decreasing timestamp order and fills stereo images into
+//! a caller-owned [`StereoFrame`], so a driver running at 10 Hz never allocates per frame.
+
+use nalgebra::{Isometry3, Vector3};
+
+/// Pinhole intrinsics of one camera, in pixels.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pinhole {
+    pub fx_px: f64,
+    pub fy_px: f64,
+    pub cx_px: f64,
+    pub cy_px: f64,
+}
+
+/// Lens distortion of a raw (unrectified) camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Distortion {
+    /// Already rectified (or an ideal pinhole).
+    None,
+    /// Radial-tangential (plumb bob) `[k1, k2, p1, p2]`, as in EuRoC's `sensor.yaml`.
+    RadTan([f64; 4]),
+}
+
+/// Calibration of one camera of a stereo pair.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraCalibration {
+    pub width_px: u32,
+    pub height_px: u32,
+    pub intrinsics: Pinhole,
+    pub distortion: Distortion,
+    /// Camera pose in the body frame when the pan-tilt head is at pan = tilt = 0 (or the fixed
+    /// mounting when there is no head).
+    pub t_body_cam: Isometry3<f64>,
+}
+
+/// What a consumer needs to know about a stereo head.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoCalibration {
+    pub left: CameraCalibration,
+    pub right: CameraCalibration,
+    /// True when the images are rectified: same intrinsics, no distortion, right camera at
+    /// `+baseline_m` along the left camera's x axis.
+    pub rectified: bool,
+    /// Distance between the two optical centres.
+    pub baseline_m: f64,
+}
+
+/// A synchronised stereo pair, 8-bit greyscale, row-major, `width × height` each.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct StereoFrame {
+    pub stamp_ns: u64,
+    /// Frame counter of the camera (gaps mean dropped frames).
+    pub sequence: u64,
+    pub width_px: u32,
+    pub height_px: u32,
+    pub left: Vec<u8>,
+    pub right: Vec<u8>,
+    /// Pan and tilt of the camera head at capture time (0 without a head).
+    pub pan_rad: f64,
+    pub tilt_rad: f64,
+}
+
+impl StereoFrame {
+    /// Resizes both images to `width × height` (keeping their allocation when it is big enough).
+    pub fn resize(&mut self, width_px: u32, height_px: u32) {
+        let len = width_px as usize * height_px as usize;
+        self.width_px = width_px;
+        self.height_px = height_px;
+        self.left.resize(len, 0);
+        self.right.resize(len, 0);
+    }
+}
+
+/// One IMU sample in the IMU (= body) frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuSample {
+    pub stamp_ns: u64,
+    /// Angular velocity of the body relative to the inertial frame, in the body frame.
+    pub gyro_radps: Vector3<f64>,
+    /// Specific force (acceleration minus gravity) in the body frame: `+g` up when at rest.
+    pub accel_mps2: Vector3<f64>,
+}
+
+/// One wheel odometry sample: the body twist the wheel encoders and steering angles imply.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WheelOdomSample {
+    pub stamp_ns: u64,
+    /// Linear velocity of the body, in the body frame.
+    pub linear_mps: Vector3<f64>,
+    /// Angular velocity of the body, in the body frame.
+    pub angular_radps: Vector3<f64>,
+    /// Standard deviations of `[linear x, y, z, angular x, y, z]` the odometry itself claims.
+    pub sigma: [f64; 6],
+}
+
+/// What [`SensorSource::next_event`] produced.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SensorEvent {
+    /// The caller's [`StereoFrame`] now holds a new pair.
+    Stereo,
+    Imu(ImuSample),
+    WheelOdom(WheelOdomSample),
+}
+
+/// Why a sensor source failed. The end of a recording is `Ok(None)`, not an error.
+#[derive(Debug, thiserror::Error)]
+pub enum SensorError {
+    #[error("{context}: {source}")]
+    Io {
+        context: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file of a dataset could not be understood; `context` names file and line.
+    #[error("{context}: {reason}")]
+    Format { context: String, reason: String },
+    /// The simulator or device could not produce the data.
+    #[error("sensor source: {0}")]
+    Source(String),
+}
+
+/// A source of time-ordered sensor events: a driver, the simulator or a dataset replay.
+pub trait SensorSource {
+    /// Calibration of the stereo head (`None` for a source without cameras).
+    fn stereo_calibration(&self) -> Option<StereoCalibration>;
+
+    /// The next event in timestamp order, or `Ok(None)` when the source is exhausted. A stereo
+    /// pair is written into `frame` (resized as needed) and announced as [`SensorEvent::Stereo`].
+    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError>;
+}
+
+impl<S: SensorSource + ?Sized> SensorSource for Box<S> {
+    fn stereo_calibration(&self) -> Option<StereoCalibration> {
+        (**self).stereo_calibration()
+    }
+
+    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {
+        (**self).next_event(frame)
+    }
+}
