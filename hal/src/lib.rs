@@ -1,6 +1,7 @@
 //! Hardware abstraction: the [`link::Link`] trait and its transports (UDP, serial, SocketCAN),
 //! an in-memory CAN bus, and the [`emulator`] for bandwidth-capped, lossy, delayed links.
 
+pub mod asl;
 pub mod can;
 pub mod emulator;
 pub mod keyfile;

@@ -4,6 +4,9 @@ use nalgebra::Vector3;
 
 use crate::terrain::Heightfield;
 
+/// Angular radius of the sun's disc seen from 1 AU (Earth and Moon): 0.2666°.
+pub const SUN_ANGULAR_RADIUS_RAD: f64 = 0.004_653;
+
 /// The sun as seen from the site.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sun {
@@ -37,10 +40,21 @@ pub enum Reflectance {
 
 impl Reflectance {
     /// Reflected radiance factor for unit `normal`, unit `to_sun` and unit `to_viewer`
-    /// (0 when the sun is below the local horizon).
+    /// (0 when the sun is below the local horizon or the viewer behind the surface). Both models
+    /// give 1 for sun and viewer along the normal.
     pub fn factor(&self, normal: &Vector3<f64>, to_sun: &Vector3<f64>, to_viewer: &Vector3<f64>) -> f32 {
-        let _ = (normal, to_sun, to_viewer);
-        0.0
+        let cos_i = normal.dot(to_sun);
+        let cos_e = normal.dot(to_viewer);
+        if cos_i <= 0.0 || cos_e <= 0.0 {
+            return 0.0;
+        }
+        match *self {
+            Reflectance::Lambert => cos_i as f32,
+            Reflectance::LunarLambert { l } => {
+                let l = f64::from(l);
+                (l * 2.0 * cos_i / (cos_i + cos_e) + (1.0 - l) * cos_i) as f32
+            }
+        }
     }
 }
 
@@ -56,20 +70,141 @@ pub struct ShadowMap {
 
 impl ShadowMap {
     /// Cast shadows of the terrain (rocks included, since they are part of the heightfield).
+    ///
+    /// A horizon sweep: rays one cell apart run across the grid away from the sun, one cell per
+    /// grid line (nearest cell), so every cell lies on exactly one ray and the whole map costs
+    /// O(cells). Along a ray the shadow surface `S` (the highest occluder lowered by
+    /// `tan(elevation)` per metre) and the distance to that occluder are carried; a cell below
+    /// `S` sees its horizon above the sun's centre. The visibility is the fraction of the sun's
+    /// disc ([`SUN_ANGULAR_RADIUS_RAD`]) above that horizon, which gives penumbrae that widen
+    /// with the distance to the occluder. Facets turned away from the sun are left to
+    /// [`Reflectance::factor`].
     pub fn compute(heightfield: &Heightfield, sun: &Sun) -> ShadowMap {
-        let _ = sun;
-        ShadowMap {
+        let mut map = ShadowMap {
             resolution_m: heightfield.resolution_m,
             origin_m: heightfield.origin_m,
             cols: heightfield.cols,
             rows: heightfield.rows,
             lit: vec![255; heightfield.cols * heightfield.rows],
+        };
+        let elevation = sun.elevation_rad;
+        if elevation.is_nan() || elevation <= -SUN_ANGULAR_RADIUS_RAD {
+            map.lit.fill(0);
+            return map;
         }
+        if elevation >= std::f64::consts::FRAC_PI_2 - SUN_ANGULAR_RADIUS_RAD
+            || heightfield.cols == 0
+            || heightfield.rows == 0
+            || heightfield.heights_m.len() < heightfield.cols * heightfield.rows
+        {
+            return map;
+        }
+        sweep(heightfield, sun, &mut map.lit);
+        map
     }
 
     /// Sun visibility in `[0, 1]` at `(x, y)`, bilinear; 1 outside the map.
     pub fn lit_at(&self, x_m: f64, y_m: f64) -> f32 {
-        let _ = (x_m, y_m);
-        1.0
+        let fx = (x_m - self.origin_m[0]) / self.resolution_m;
+        let fy = (y_m - self.origin_m[1]) / self.resolution_m;
+        let (max_x, max_y) = ((self.cols.max(1) - 1) as f64, (self.rows.max(1) - 1) as f64);
+        if !(fx >= 0.0 && fx <= max_x && fy >= 0.0 && fy <= max_y) || self.lit.len() < self.cols * self.rows {
+            return 1.0;
+        }
+        let c = (fx as usize).min(self.cols.saturating_sub(2));
+        let r = (fy as usize).min(self.rows.saturating_sub(2));
+        let (ax, ay) = ((fx - c as f64) as f32, (fy - r as f64) as f32);
+        let (c1, r1) = ((c + 1).min(self.cols - 1), (r + 1).min(self.rows - 1));
+        let at = |cc: usize, rr: usize| f32::from(self.lit[rr * self.cols + cc]);
+        let a = at(c, r) + ax * (at(c1, r) - at(c, r));
+        let b = at(c, r1) + ax * (at(c1, r1) - at(c, r1));
+        (a + ay * (b - a)) * (1.0 / 255.0)
+    }
+
+    /// Sun visibility of cell `(col, row)` in `[0, 1]`, 1 outside the map.
+    pub fn lit_at_cell(&self, col: usize, row: usize) -> f32 {
+        if col >= self.cols || row >= self.rows {
+            return 1.0;
+        }
+        self.lit.get(row * self.cols + col).map_or(1.0, |&v| f32::from(v) * (1.0 / 255.0))
+    }
+}
+
+/// Fraction of a disc above a line `x` radii below its centre (`x` = 1: all of it).
+fn disc_fraction_above(x: f64) -> f64 {
+    let x = x.clamp(-1.0, 1.0);
+    0.5 + (x * (1.0 - x * x).sqrt() + x.asin()) / std::f64::consts::PI
+}
+
+fn sweep(hf: &Heightfield, sun: &Sun, lit: &mut [u8]) {
+    let cols = hf.cols;
+    let (to_sun_y, to_sun_x) = sun.azimuth_rad.sin_cos();
+    // Lines are columns when the sun is more east-west than north-south, rows otherwise. Rays
+    // advance one line per step away from the sun and `slope` cells along the line.
+    let x_major = to_sun_x.abs() >= to_sun_y.abs();
+    let (major_dir, minor_dir) = if x_major { (-to_sun_x, -to_sun_y) } else { (-to_sun_y, -to_sun_x) };
+    let slope = minor_dir / major_dir.abs();
+    let (lines, along) = if x_major { (cols, hf.rows) } else { (hf.rows, cols) };
+    let forward = major_dir > 0.0;
+    let step_m = hf.resolution_m * (1.0 + slope * slope).sqrt();
+    let drop_per_step = sun.elevation_rad.tan() * step_m;
+    let tan_elevation = sun.elevation_rad.tan();
+    let cos2_elevation = sun.elevation_rad.cos().powi(2);
+    // Ray `i` meets line `k` at position `i + round(k · slope)` along it; the shifts grow
+    // monotonically with `k`, so rays are numbered from the most negative `i` needed.
+    let shift = |k: usize| (k as f64 * slope).round() as i64;
+    let last_shift = shift(lines - 1);
+    let ray_base = last_shift.max(0);
+    let rays = along + last_shift.unsigned_abs() as usize;
+    let mut shadow_top = vec![f64::NEG_INFINITY; rays];
+    let mut occluder_distance = vec![0.0f64; rays];
+    for k in 0..lines {
+        let line = if forward { k } else { lines - 1 - k };
+        let offset = ray_base - shift(k);
+        for j in 0..along {
+            let (col, row) = if x_major { (line, j) } else { (j, line) };
+            let index = row * cols + col;
+            let h = f64::from(hf.heights_m[index]);
+            let ray = (j as i64 + offset) as usize;
+            let top = shadow_top[ray] - drop_per_step;
+            let distance = occluder_distance[ray] + step_m;
+            let visibility = if top == f64::NEG_INFINITY {
+                1.0
+            } else {
+                // The occluder subtends tan(elevation) + (top − h) / distance; near the sun's
+                // disc the angular gap is that tangent gap times cos²(elevation).
+                let tan_gap = (h - top) / distance;
+                let gap_rad = tan_gap * cos2_elevation;
+                if gap_rad >= 1.5 * SUN_ANGULAR_RADIUS_RAD {
+                    1.0
+                } else if gap_rad <= -1.5 * SUN_ANGULAR_RADIUS_RAD {
+                    0.0
+                } else {
+                    let horizon = (tan_elevation - tan_gap).atan();
+                    disc_fraction_above((sun.elevation_rad - horizon) / SUN_ANGULAR_RADIUS_RAD)
+                }
+            };
+            lit[index] = (visibility * 255.0).round() as u8;
+            if h >= top {
+                shadow_top[ray] = h;
+                occluder_distance[ray] = 0.0;
+            } else {
+                shadow_top[ray] = top;
+                occluder_distance[ray] = distance;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn disc_fraction_runs_from_none_to_all() {
+        assert_eq!(disc_fraction_above(-1.0), 0.0);
+        assert!((disc_fraction_above(0.0) - 0.5).abs() < 1e-12);
+        assert!((disc_fraction_above(1.0) - 1.0).abs() < 1e-12);
+        assert!((disc_fraction_above(0.3) + disc_fraction_above(-0.3) - 1.0).abs() < 1e-12);
     }
 }
