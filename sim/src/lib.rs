@@ -16,6 +16,7 @@
 //!   a-coordinates). Times are `stamp_ns: u64` since the start of the run.
 //! - Orientation of trajectories: yaw-pitch-roll, `R = Rz(yaw) · Ry(pitch) · Rx(roll)`.
 
+pub mod allan;
 pub mod asl;
 pub mod body;
 pub mod camera;
