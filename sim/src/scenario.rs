@@ -1,17 +1,54 @@
 //! Named scenarios: a site, a sun, a body, and a team with its paths (owned by the world helper).
+//!
+//! The team starts on a ring around the world origin, every robot facing the centre, so they see
+//! each other's markers from the first frame. Each rover then explores a rosette of seeded
+//! "petals": out from a hub near the origin to two points at a petal radius and back, petal
+//! after petal turned by the golden angle. Every return to the hub revisits the robot's own
+//! earlier map and crosses the other robots' petals, which is where loop closures come from.
+//! Petals are added while the whole plan (driving, turning, pauses) fits the duration.
+//! Obstacles are unknown here; [`crate::world::World::build`] repairs the paths on the generated
+//! terrain.
+
+use std::f64::consts::PI;
 
 use crate::body::Body;
+use crate::camera::StereoCamera;
 use crate::imu::ImuNoise;
 use crate::lighting::{Reflectance, Sun};
-use crate::motion::RoverDrive;
+use crate::motion::{MotionPlan, RoverDrive};
 use crate::radio::RadioConfig;
 use crate::render::SensorModel;
+use crate::rng::{self, Rng, streams};
 use crate::robot::RobotModel;
 use crate::terrain::TerrainConfig;
 use crate::wheel::WheelOdomConfig;
 
 /// Names `preset` accepts.
 pub const PRESETS: &[&str] = &["moon", "mars"];
+
+/// Largest team (three tag36h11 markers per rover out of the 96 kept codes).
+pub const MAX_ROBOTS: usize = 32;
+/// Spacing of the robots on the start ring.
+pub const START_SPACING_M: f64 = 3.0;
+/// The start ring's smallest radius.
+const MIN_RING_RADIUS_M: f64 = 3.0;
+/// Paths keep this far inside the terrain's edge.
+pub const EDGE_MARGIN_M: f64 = 3.0;
+/// Smallest terrain edge a preset accepts.
+pub const MIN_WORLD_SIZE_M: f64 = 20.0;
+/// Head tilt while driving: the ground from about 2.7 m to the horizon's edge is in view, and
+/// so are other rovers' markers (about 0.25 m below the cameras) from 2 m on.
+pub const ROVER_TILT_RAD: f64 = 0.25;
+/// Pan sweep amplitude while standing (the world limits it further by the pan rate).
+pub const ROVER_PAN_SWEEP_RAD: f64 = 1.0;
+/// Rovers' drive: LRU-like speed, a pause at each waypoint long enough for a slow look around.
+pub const ROVER_DRIVE: RoverDrive = RoverDrive { speed_mps: 0.3, pause_s: 6.0, knot_interval_s: 0.1 };
+/// The flyer's drive: faster, short hovers.
+pub const FLYER_DRIVE: RoverDrive = RoverDrive { speed_mps: 1.0, pause_s: 2.0, knot_interval_s: 0.1 };
+/// The flyer's cruise heights above ground.
+const FLYER_HEIGHT_M: [f64; 2] = [3.0, 5.0];
+/// Golden angle: consecutive petals never line up, so the rosette fills the circle evenly.
+const GOLDEN_ANGLE_RAD: f64 = 2.399_963_229_728_653;
 
 /// Knobs of a preset that a user or a test sets.
 #[derive(Debug, Clone, PartialEq)]
@@ -76,8 +113,262 @@ pub enum ScenarioError {
     Invalid(String),
 }
 
+/// What differs between the presets.
+struct Site {
+    body: Body,
+    terrain: TerrainConfig,
+    sun: Sun,
+    reflectance: Reflectance,
+    sky_radiance: f32,
+}
+
+fn site(name: &str) -> Option<Site> {
+    match name {
+        // A low sun throws long shadows across an airless, black sky; regolith scatters close to
+        // Lommel–Seeliger (McEwen's lunar-Lambert weight near 1 at moderate phase angles).
+        "moon" => Some(Site {
+            body: Body::Moon,
+            terrain: TerrainConfig::moon(),
+            sun: Sun { azimuth_rad: 150f64.to_radians(), elevation_rad: 20f64.to_radians(), irradiance: 1.0 },
+            reflectance: Reflectance::LunarLambert { l: 0.9 },
+            sky_radiance: 0.0,
+        }),
+        // A higher sun through a dusty sky that adds a dim diffuse light; dust scatters closer
+        // to Lambert.
+        "mars" => Some(Site {
+            body: Body::Mars,
+            terrain: TerrainConfig::mars(),
+            sun: Sun { azimuth_rad: 210f64.to_radians(), elevation_rad: 42f64.to_radians(), irradiance: 0.6 },
+            reflectance: Reflectance::LunarLambert { l: 0.3 },
+            sky_radiance: 0.05,
+        }),
+        _ => None,
+    }
+}
+
+fn validate(options: &ScenarioOptions) -> Result<(), ScenarioError> {
+    if !(1..=MAX_ROBOTS).contains(&options.robots) {
+        return Err(ScenarioError::Invalid(format!("robots must be 1..={MAX_ROBOTS}, got {}", options.robots)));
+    }
+    if !(options.duration_s.is_finite() && options.duration_s > 0.0) {
+        return Err(ScenarioError::Invalid(format!("duration must be positive, got {} s", options.duration_s)));
+    }
+    if options.downscale < 1 {
+        return Err(ScenarioError::Invalid("downscale must be at least 1".to_owned()));
+    }
+    if let Some(size) = options.world_size_m
+        && !(size.is_finite() && size >= MIN_WORLD_SIZE_M)
+    {
+        return Err(ScenarioError::Invalid(format!("world size must be at least {MIN_WORLD_SIZE_M} m, got {size}")));
+    }
+    Ok(())
+}
+
+/// Radius of the start ring for `robots` robots.
+pub fn ring_radius_m(robots: usize) -> f64 {
+    (START_SPACING_M * robots as f64 / (2.0 * PI)).max(MIN_RING_RADIUS_M)
+}
+
+/// Start of robot `index` of `robots` on the ring (robot 0 to the west, counter-clockwise).
+pub fn start_position_m(index: usize, robots: usize) -> [f64; 2] {
+    let angle = PI + 2.0 * PI * index as f64 / robots as f64;
+    let r = ring_radius_m(robots);
+    [r * angle.cos(), r * angle.sin()]
+}
+
 /// The preset `name` with `options`.
 pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, ScenarioError> {
-    let _ = options;
-    Err(ScenarioError::Unknown(name.to_owned()))
+    let site = site(name).ok_or_else(|| ScenarioError::Unknown(name.to_owned()))?;
+    validate(options)?;
+    let mut terrain = site.terrain;
+    if let Some(size) = options.world_size_m {
+        terrain = terrain.with_size(size);
+    }
+    let half_extent = 0.5 * terrain.size_m[0].min(terrain.size_m[1]) - EDGE_MARGIN_M;
+    let n = options.robots;
+    let ring = ring_radius_m(n);
+    let ground_station = [0.0, -(ring + 4.0), 2.0];
+    let flyer_start = [0.0, ring + 3.0];
+    if ring + 4.0 > half_extent {
+        return Err(ScenarioError::Invalid(format!(
+            "a team of {n} needs a world of at least {:.0} m",
+            2.0 * (ring + 4.0 + EDGE_MARGIN_M)
+        )));
+    }
+    terrain =
+        terrain.with_clear_area([0.0, 0.0], ring + 2.5).with_clear_area([ground_station[0], ground_station[1]], 2.0);
+    if options.flyer {
+        terrain = terrain.with_clear_area(flyer_start, 2.0);
+    }
+
+    let camera = StereoCamera::narrow().downscaled(options.downscale);
+    // Petals grow with the distance a rover can drive, within the site.
+    let petal_radius =
+        (ROVER_DRIVE.speed_mps * options.duration_s * 0.5 / 6.0).clamp(2.0, (0.8 * half_extent).max(2.0));
+    let mut robots = Vec::with_capacity(n + usize::from(options.flyer));
+    for i in 0..n {
+        let mut rng = rng::stream(options.seed, &[streams::PATHS, i as u64]);
+        let start = start_position_m(i, n);
+        let route = rover_route(&mut rng, start, petal_radius, half_extent, options.duration_s);
+        robots.push(RobotSetup {
+            id: i as u8,
+            name: format!("rover{i}"),
+            model: RobotModel::rover(i as u32, camera),
+            waypoints_m: route,
+            drive: ROVER_DRIVE,
+            tilt_rad: ROVER_TILT_RAD,
+            pan_sweep_rad: ROVER_PAN_SWEEP_RAD,
+        });
+    }
+    if options.flyer {
+        let mut rng = rng::stream(options.seed, &[streams::PATHS, n as u64]);
+        let route = flyer_route(&mut rng, flyer_start, 1.5 * petal_radius, half_extent, options.duration_s);
+        // Ardea's virtual pinholes cover about 80° horizontally on a 12 cm baseline (thesis §7.1).
+        let flyer_camera =
+            StereoCamera::with_hfov(crate::camera::FULL_WIDTH_PX, crate::camera::FULL_HEIGHT_PX, 80.0, 0.12)
+                .downscaled(options.downscale);
+        robots.push(RobotSetup {
+            id: n as u8,
+            name: "flyer".to_owned(),
+            model: RobotModel::flyer(flyer_camera),
+            waypoints_m: route,
+            drive: FLYER_DRIVE,
+            tilt_rad: 0.0,
+            pan_sweep_rad: 0.0,
+        });
+    }
+
+    Ok(Scenario {
+        name: name.to_owned(),
+        seed: options.seed,
+        body: site.body,
+        terrain,
+        sun: site.sun,
+        reflectance: site.reflectance,
+        sky_radiance: site.sky_radiance,
+        duration_s: options.duration_s,
+        camera_rate_hz: 10.0,
+        imu_rate_hz: 200.0,
+        imu_noise: ImuNoise::xsens_mti10(),
+        wheel: WheelOdomConfig::default(),
+        sensor: SensorModel::default(),
+        radio: RadioConfig {
+            max_range_m: 150.0,
+            full_quality_range_m: 50.0,
+            require_line_of_sight: true,
+            ground_station_m: ground_station,
+            base: hal::emulator::EmulatorConfig::lossy_wifi(),
+            outages_ms: Vec::new(),
+        },
+        robots,
+    })
+}
+
+fn clamp_to(p: [f64; 2], half_extent: f64) -> [f64; 2] {
+    [p[0].clamp(-half_extent, half_extent), p[1].clamp(-half_extent, half_extent)]
+}
+
+fn towards(from: [f64; 2], to: [f64; 2], distance: f64) -> [f64; 2] {
+    let (dx, dy) = (to[0] - from[0], to[1] - from[1]);
+    let d = dx.hypot(dy);
+    if d < 1e-9 { from } else { [from[0] + dx / d * distance, from[1] + dy / d * distance] }
+}
+
+/// Petal `k` of a rosette: two outer points and the next hub visit.
+fn petal(rng: &mut Rng, theta: f64, radius_m: f64, half_extent: f64) -> [[f64; 2]; 3] {
+    let hub = [rng.range(-1.5, 1.5), rng.range(-1.5, 1.5)];
+    let r = radius_m * rng.range(0.7, 1.0);
+    let half_width = rng.range(0.35, 0.6);
+    let outer = |a: f64| clamp_to([hub[0] + r * a.cos(), hub[1] + r * a.sin()], half_extent);
+    let back = [rng.range(-1.5, 1.5), rng.range(-1.5, 1.5)];
+    [outer(theta - half_width), outer(theta + half_width), back]
+}
+
+/// A rover's rosette from `start`: a metre towards the centre (so it starts facing it), then
+/// petals while the plan fits `duration_s`.
+fn rover_route(rng: &mut Rng, start: [f64; 2], radius_m: f64, half_extent: f64, duration_s: f64) -> Vec<[f64; 3]> {
+    let first = towards(start, [0.0, 0.0], 1.0);
+    let mut route = vec![start, first];
+    // The first petal lies across the hub from the start.
+    let base = start[1].atan2(start[0]) + PI + rng.range(-0.3, 0.3);
+    let fits = |route: &[[f64; 2]]| MotionPlan::rover(route, &ROVER_DRIVE).is_ok_and(|p| p.end_s() <= duration_s);
+    'petals: for k in 0..10_000 {
+        for p in petal(rng, base + k as f64 * GOLDEN_ANGLE_RAD, radius_m, half_extent) {
+            route.push(p);
+            if !fits(&route) {
+                route.pop();
+                break 'petals;
+            }
+        }
+    }
+    route.into_iter().map(|p| [p[0], p[1], 0.0]).collect()
+}
+
+/// The flyer's rosette at cruise heights from `start`: petals while the flight (take-off and
+/// landing included) fits `duration_s`.
+fn flyer_route(rng: &mut Rng, start: [f64; 2], radius_m: f64, half_extent: f64, duration_s: f64) -> Vec<[f64; 3]> {
+    let height = |rng: &mut Rng| rng.range(FLYER_HEIGHT_M[0], FLYER_HEIGHT_M[1]);
+    let h0 = height(rng);
+    let mut route = vec![[start[0], start[1], h0], [0.0, 0.0, h0]];
+    let base = rng.range(0.0, 2.0 * PI);
+    let fits = |route: &[[f64; 3]]| MotionPlan::flyer(route, &FLYER_DRIVE).is_ok_and(|p| p.end_s() <= duration_s);
+    'petals: for k in 0..10_000 {
+        for p in petal(rng, base + k as f64 * GOLDEN_ANGLE_RAD, radius_m, half_extent) {
+            let h = height(rng);
+            route.push([p[0], p[1], h]);
+            if !fits(&route) {
+                route.pop();
+                break 'petals;
+            }
+        }
+    }
+    route
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn options_are_validated() {
+        let ok = ScenarioOptions::default();
+        assert!(preset("moon", &ok).is_ok());
+        assert!(matches!(preset("venus", &ok), Err(ScenarioError::Unknown(_))));
+        for bad in [
+            ScenarioOptions { robots: 0, ..ok.clone() },
+            ScenarioOptions { robots: 33, ..ok.clone() },
+            ScenarioOptions { duration_s: 0.0, ..ok.clone() },
+            ScenarioOptions { duration_s: f64::NAN, ..ok.clone() },
+            ScenarioOptions { downscale: 0, ..ok.clone() },
+            ScenarioOptions { world_size_m: Some(5.0), ..ok.clone() },
+        ] {
+            assert!(matches!(preset("mars", &bad), Err(ScenarioError::Invalid(_))), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn routes_fit_the_duration_and_stay_inside() {
+        let options = ScenarioOptions {
+            robots: 3,
+            duration_s: 300.0,
+            world_size_m: Some(60.0),
+            flyer: true,
+            ..Default::default()
+        };
+        let s = preset("moon", &options).unwrap();
+        assert_eq!(s.robots.len(), 4);
+        for r in &s.robots {
+            let route: Vec<[f64; 2]> = r.waypoints_m.iter().map(|w| [w[0], w[1]]).collect();
+            let end = if r.model.head.is_some() {
+                MotionPlan::rover(&route, &r.drive).unwrap().end_s()
+            } else {
+                MotionPlan::flyer(&r.waypoints_m, &r.drive).unwrap().end_s()
+            };
+            assert!(end <= 300.0 && end > 200.0, "{}: plan ends at {end} s", r.name);
+            assert!(r.waypoints_m.iter().all(|w| w[0].abs() <= 27.0 && w[1].abs() <= 27.0));
+        }
+        // Same seed, same plan; another seed, another.
+        assert_eq!(preset("moon", &options).unwrap(), s);
+        assert_ne!(preset("moon", &ScenarioOptions { seed: 2, ..options }).unwrap().robots, s.robots);
+    }
 }
