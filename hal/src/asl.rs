@@ -29,8 +29,8 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 use crate::sensor::{
-    CameraCalibration, Distortion, ImuSample, Pinhole, SensorError, SensorEvent, SensorSource, StereoCalibration,
-    StereoFrame, WheelOdomSample,
+    CameraCalibration, Distortion, ImuSample, PanTiltHead, Pinhole, SensorError, SensorEvent, SensorSource,
+    StereoCalibration, StereoFrame, WheelOdomSample,
 };
 use csv::{CameraRow, PanTiltRow};
 use yaml::Yaml;
@@ -181,6 +181,26 @@ fn distortion(yaml: &Yaml) -> Result<Distortion, SensorError> {
     }
 }
 
+/// The head kinematics of `pantilt0/sensor.yaml`; the baseline is the cameras' distance.
+fn pan_tilt_head(yaml: &Yaml, left: &CameraCalibration, right: &CameraCalibration) -> Result<PanTiltHead, SensorError> {
+    let [px, py, pz] = yaml.required_array::<3>("pan_axis_body_m")?;
+    let [sx, sy, sz] = yaml.required_array::<3>("stereo_centre_head_m")?;
+    let limit = |key: &str, default: f64| -> Result<f64, SensorError> {
+        match yaml.number(key)? {
+            Some(v) if v.is_finite() && v >= 0.0 => Ok(v),
+            Some(_) => Err(yaml.error(yaml.line(key), format!("{key} must be a finite angle ≥ 0"))),
+            None => Ok(default),
+        }
+    };
+    Ok(PanTiltHead {
+        pan_axis_body_m: Vector3::new(px, py, pz),
+        stereo_centre_head_m: Vector3::new(sx, sy, sz),
+        baseline_m: (left.t_body_cam.inverse() * right.t_body_cam).translation.vector.norm(),
+        pan_limit_rad: limit("pan_limit_rad", std::f64::consts::PI)?,
+        tilt_limit_rad: limit("tilt_limit_rad", std::f64::consts::FRAC_PI_2)?,
+    })
+}
+
 /// The stereo calibration of two cameras: rectified when both are ideal pinholes with equal
 /// intrinsics and size and the right camera sits on the left one's +x axis, unrotated.
 pub fn pair_calibration(left: CameraCalibration, right: CameraCalibration) -> StereoCalibration {
@@ -194,7 +214,7 @@ pub fn pair_calibration(left: CameraCalibration, right: CameraCalibration) -> St
         && offset.x > 0.0
         && offset.y.abs() < RECTIFIED_OFFSET_TOLERANCE_M
         && offset.z.abs() < RECTIFIED_OFFSET_TOLERANCE_M;
-    StereoCalibration { left, right, rectified, baseline_m: offset.norm() }
+    StereoCalibration { left, right, rectified, baseline_m: offset.norm(), head: None }
 }
 
 fn imu_noise(yaml: &Yaml) -> Result<Option<ImuNoiseDensities>, SensorError> {
@@ -288,6 +308,7 @@ fn open_cameras(root: &Path, pantilt: &[PanTiltRow]) -> Result<Cameras, SensorEr
     let (mut left, rate_hz) = camera_calibration(&read_yaml(&cam0.join("sensor.yaml"))?)?;
     let (mut right, _) = camera_calibration(&read_yaml(&cam1.join("sensor.yaml"))?)?;
     let pantilt_yaml = root.join("pantilt0").join("sensor.yaml");
+    let mut head = None;
     if pantilt_yaml.is_file() {
         let yaml = read_yaml(&pantilt_yaml)?;
         if let Some(t_body_left_zero) = read_transform(&yaml, "T_BS_cam0_pan0_tilt0")? {
@@ -296,8 +317,10 @@ fn open_cameras(root: &Path, pantilt: &[PanTiltRow]) -> Result<Cameras, SensorEr
             left.t_body_cam = t_body_left_zero;
             right.t_body_cam = t_body_left_zero * t_left_right;
         }
+        head = Some(pan_tilt_head(&yaml, &left, &right)?);
     }
-    let calibration = pair_calibration(left, right);
+    let mut calibration = pair_calibration(left, right);
+    calibration.head = head;
     let csv0 = cam0.join("data.csv");
     let csv1 = cam1.join("data.csv");
     let rows0 = csv::parse_camera_csv(&read(&csv0)?, &csv0)?;

@@ -13,7 +13,7 @@
 //! A [`SensorSource`] yields events in non-decreasing timestamp order and fills stereo images into
 //! a caller-owned [`StereoFrame`], so a driver running at 10 Hz never allocates per frame.
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// Pinhole intrinsics of one camera, in pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -41,8 +41,59 @@ pub struct CameraCalibration {
     pub intrinsics: Pinhole,
     pub distortion: Distortion,
     /// Camera pose in the body frame when the pan-tilt head is at pan = tilt = 0 (or the fixed
-    /// mounting when there is no head).
+    /// mounting when there is no head). With a head, use [`StereoCalibration::t_body_left`] with
+    /// the frame's pan and tilt.
     pub t_body_cam: Isometry3<f64>,
+}
+
+/// Rotation from the optical frame (x right, y down, z forward) to a forward-left-up frame.
+pub fn r_flu_optical() -> Rotation3<f64> {
+    // Columns: the optical axes expressed in forward-left-up coordinates.
+    Rotation3::from_matrix_unchecked(Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0))
+}
+
+/// Kinematics of a pan-tilt camera head on a mast.
+///
+/// The pan axis is the body's z axis through `pan_axis_body_m`; the tilt axis is the panned y
+/// axis; **positive tilt looks down**. At pan = tilt = 0 the cameras look along the body's x
+/// axis. The stereo pair's centre sits at `stereo_centre_head_m` in the head frame
+/// (forward-left-up after pan and tilt), the left camera `baseline_m / 2` to its left.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PanTiltHead {
+    /// Where the pan and tilt axes cross, in the body frame.
+    pub pan_axis_body_m: Vector3<f64>,
+    pub stereo_centre_head_m: Vector3<f64>,
+    pub baseline_m: f64,
+    /// Mechanical limits; angles beyond them are clamped.
+    pub pan_limit_rad: f64,
+    pub tilt_limit_rad: f64,
+}
+
+impl PanTiltHead {
+    /// The LRU-like head (thesis §7.1: pan ±180°, tilt ±90°, 9 cm baseline): axes 1.05 m above
+    /// and 0.30 m ahead of the chassis centre (about 1.4 m above the ground), cameras 6 cm in
+    /// front of the tilt axis.
+    pub fn lru() -> Self {
+        PanTiltHead {
+            pan_axis_body_m: Vector3::new(0.30, 0.0, 1.05),
+            stereo_centre_head_m: Vector3::new(0.06, 0.0, 0.0),
+            baseline_m: 0.09,
+            pan_limit_rad: std::f64::consts::PI,
+            tilt_limit_rad: std::f64::consts::FRAC_PI_2,
+        }
+    }
+
+    /// Pose of the left camera's optical frame in the body frame, angles clamped to the limits.
+    pub fn t_body_cam(&self, pan_rad: f64, tilt_rad: f64) -> Isometry3<f64> {
+        let pan = pan_rad.clamp(-self.pan_limit_rad, self.pan_limit_rad);
+        let tilt = tilt_rad.clamp(-self.tilt_limit_rad, self.tilt_limit_rad);
+        let r_body_head =
+            Rotation3::from_axis_angle(&Vector3::z_axis(), pan) * Rotation3::from_axis_angle(&Vector3::y_axis(), tilt);
+        let left_lens_head = self.stereo_centre_head_m + Vector3::new(0.0, 0.5 * self.baseline_m, 0.0);
+        let t = self.pan_axis_body_m + r_body_head * left_lens_head;
+        let r = r_body_head * r_flu_optical();
+        Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r))
+    }
 }
 
 /// What a consumer needs to know about a stereo head.
@@ -55,6 +106,19 @@ pub struct StereoCalibration {
     pub rectified: bool,
     /// Distance between the two optical centres.
     pub baseline_m: f64,
+    /// The pan-tilt head the pair sits on, if any; frames then carry the head's angles.
+    pub head: Option<PanTiltHead>,
+}
+
+impl StereoCalibration {
+    /// Pose of the left camera in the body frame at the given head angles (the fixed mounting
+    /// without a head).
+    pub fn t_body_left(&self, pan_rad: f64, tilt_rad: f64) -> Isometry3<f64> {
+        match &self.head {
+            Some(head) => head.t_body_cam(pan_rad, tilt_rad),
+            None => self.left.t_body_cam,
+        }
+    }
 }
 
 /// A synchronised stereo pair, 8-bit greyscale, row-major, `width × height` each.

@@ -5,12 +5,13 @@
 //! optical frame). Optical frame: x right, y down, z forward; pixel `(u, v)` has its centre at
 //! integer coordinates, `u = fx · x / z + cx`.
 //!
-//! Head kinematics (rover): the pan axis is the body's z axis through `pan_axis_body_m`; the tilt
-//! axis is the panned y axis; **positive tilt looks down**. At pan = tilt = 0 the cameras look
-//! along the body's x axis, the stereo pair centred on the pan axis.
+//! The pan-tilt head's kinematics ([`PanTiltHead`], positive tilt looks down) live in
+//! `hal::sensor`, so every consumer of a calibration can turn a frame's pan and tilt into the
+//! camera's pose in the body frame.
 
 use hal::sensor::{CameraCalibration, Distortion, Pinhole, StereoCalibration};
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+pub use hal::sensor::{PanTiltHead, r_flu_optical};
+use nalgebra::{Isometry3, Vector3};
 
 /// Width × height the rover's FPGA matches (thesis §7.1).
 pub const FULL_WIDTH_PX: u32 = 1024;
@@ -100,8 +101,9 @@ impl StereoCamera {
         Isometry3::translation(self.baseline_m, 0.0, 0.0)
     }
 
-    /// The calibration `hal` hands to consumers; `t_body_cam` is the left camera at pan = tilt = 0.
-    pub fn calibration(&self, t_body_cam: &Isometry3<f64>) -> StereoCalibration {
+    /// The calibration `hal` hands to consumers: `t_body_cam` is the left camera at pan = tilt = 0
+    /// (or the fixed mounting when `head` is `None`).
+    pub fn calibration(&self, t_body_cam: &Isometry3<f64>, head: Option<PanTiltHead>) -> StereoCalibration {
         let intrinsics = Pinhole { fx_px: self.f_px, fy_px: self.f_px, cx_px: self.cx_px, cy_px: self.cy_px };
         let left = CameraCalibration {
             width_px: self.width_px,
@@ -111,53 +113,7 @@ impl StereoCamera {
             t_body_cam: *t_body_cam,
         };
         let right = CameraCalibration { t_body_cam: t_body_cam * self.t_left_right(), ..left };
-        StereoCalibration { left, right, rectified: true, baseline_m: self.baseline_m }
-    }
-}
-
-/// Rotation from the optical frame (x right, y down, z forward) to a forward-left-up frame.
-pub fn r_flu_optical() -> Rotation3<f64> {
-    // Columns: the optical axes expressed in forward-left-up coordinates.
-    Rotation3::from_matrix_unchecked(Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0))
-}
-
-/// A pan-tilt head on a mast.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PanTiltHead {
-    /// Where the pan and tilt axes cross, in the body frame.
-    pub pan_axis_body_m: Vector3<f64>,
-    /// Offset of the stereo pair's centre from the axes' crossing, in the head frame (forward-left-up
-    /// after pan and tilt).
-    pub stereo_centre_head_m: Vector3<f64>,
-    pub baseline_m: f64,
-    /// Mechanical limits (LRU: pan ±180°, tilt ±90°, thesis §7.1).
-    pub pan_limit_rad: f64,
-    pub tilt_limit_rad: f64,
-}
-
-impl PanTiltHead {
-    /// The LRU-like head: axes 1.05 m above and 0.30 m ahead of the chassis centre (about 1.4 m
-    /// above the ground), cameras 6 cm in front of the tilt axis.
-    pub fn lru() -> Self {
-        PanTiltHead {
-            pan_axis_body_m: Vector3::new(0.30, 0.0, 1.05),
-            stereo_centre_head_m: Vector3::new(0.06, 0.0, 0.0),
-            baseline_m: BASELINE_M,
-            pan_limit_rad: std::f64::consts::PI,
-            tilt_limit_rad: std::f64::consts::FRAC_PI_2,
-        }
-    }
-
-    /// Pose of the left camera's optical frame in the body frame, angles clamped to the limits.
-    pub fn t_body_cam(&self, pan_rad: f64, tilt_rad: f64) -> Isometry3<f64> {
-        let pan = pan_rad.clamp(-self.pan_limit_rad, self.pan_limit_rad);
-        let tilt = tilt_rad.clamp(-self.tilt_limit_rad, self.tilt_limit_rad);
-        let r_body_head =
-            Rotation3::from_axis_angle(&Vector3::z_axis(), pan) * Rotation3::from_axis_angle(&Vector3::y_axis(), tilt);
-        let left_lens_head = self.stereo_centre_head_m + Vector3::new(0.0, 0.5 * self.baseline_m, 0.0);
-        let t = self.pan_axis_body_m + r_body_head * left_lens_head;
-        let r = r_body_head * r_flu_optical();
-        Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r))
+        StereoCalibration { left, right, rectified: true, baseline_m: self.baseline_m, head }
     }
 }
 

@@ -185,7 +185,8 @@ impl SimSensorSource {
 impl SensorSource for SimSensorSource {
     fn stereo_calibration(&self) -> Option<StereoCalibration> {
         let robot = &self.world.robots[self.robot];
-        Some(robot.model().camera.calibration(&robot.model().t_body_cam(0.0, robot.setup.tilt_rad)))
+        let model = robot.model();
+        Some(model.camera.calibration(&model.t_body_cam(0.0, 0.0), model.head))
     }
 
     fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {

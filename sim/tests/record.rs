@@ -157,6 +157,15 @@ fn assert_reads_back(world: &Arc<World>, robot: usize, dir: &Path) -> [usize; 3]
     let model = world.robots[robot].model();
     let (dt, dr) = pose_error(&read_cal.left.t_body_cam, &model.t_body_cam(0.0, 0.0));
     assert!(dt < 1e-12 && dr < 1e-12, "t_body_cam at rest off by {dt} m, {dr} rad");
+    assert_eq!(read_cal.head.is_some(), model.head.is_some());
+    assert_eq!(sim_cal.head, model.head);
+    // Both calibrations turn any head angles into the simulator's camera pose.
+    for (pan, tilt) in [(0.0, 0.0), (0.4, 0.25), (-2.0, -0.3), (3.0, 1.2)] {
+        for cal in [&sim_cal, &read_cal] {
+            let (dt, dr) = pose_error(&cal.t_body_left(pan, tilt), &model.t_body_cam(pan, tilt));
+            assert!(dt < 1e-12 && dr < 1e-12, "t_body_left({pan}, {tilt}) off by {dt} m, {dr} rad");
+        }
+    }
     let yaml_path = dir.join("mav0/cam0/sensor.yaml");
     let yaml = Yaml::parse(&fs::read(&yaml_path).unwrap(), &yaml_path).unwrap();
     let t_bs = hal::asl::read_transform(&yaml, "T_BS").unwrap().unwrap();
