@@ -3,6 +3,7 @@
 use nalgebra::Vector3;
 
 use crate::terrain::Heightfield;
+use crate::terrain::bilinear::{self, CHUNK, Taps};
 
 /// Angular radius of the sun's disc seen from 1 AU (Earth and Moon): 0.2666°.
 pub const SUN_ANGULAR_RADIUS_RAD: f64 = 0.004_653;
@@ -105,20 +106,52 @@ impl ShadowMap {
 
     /// Sun visibility in `[0, 1]` at `(x, y)`, bilinear; 1 outside the map.
     pub fn lit_at(&self, x_m: f64, y_m: f64) -> f32 {
+        let mut out = [0.0];
+        self.lit_many(&[x_m], &[y_m], &mut out);
+        out[0]
+    }
+
+    /// [`ShadowMap::lit_at`] at many points, bit for bit the same per point, several times
+    /// faster (see `terrain::bilinear`). Fills `out[i]` for `i` below the shortest length.
+    pub fn lit_many(&self, x_m: &[f64], y_m: &[f64], out: &mut [f32]) {
+        let n = out.len().min(x_m.len()).min(y_m.len());
+        let (cols, rows) = (self.cols, self.rows);
+        if cols < 2 || rows < 2 || self.lit.len() < cols * rows {
+            for i in 0..n {
+                out[i] = self.lit_at_small(x_m[i], y_m[i]);
+            }
+            return;
+        }
+        let level = bilinear::Level { offset: 0, cols, rows, scale: 1.0, shift: 0.0 };
+        let (max_x, max_y) = ((cols - 1) as f32, (rows - 1) as f32);
+        let inv_res = 1.0 / self.resolution_m;
+        let (mut gx, mut gy) = ([0.0f32; CHUNK], [0.0f32; CHUNK]);
+        let mut taps = Taps::new();
+        for start in (0..n).step_by(CHUNK) {
+            let m = (n - start).min(CHUNK);
+            let (gx, gy) = (&mut gx[..m], &mut gy[..m]);
+            bilinear::cell_coordinates(self.origin_m, inv_res, &x_m[start..start + m], &y_m[start..start + m], gx, gy);
+            taps.on_level(&level, gx, gy);
+            let out = &mut out[start..start + m];
+            taps.blend(&self.lit, cols, out);
+            for i in 0..m {
+                // Written so that NaN is outside; `&` rather than `&&` keeps the loop branch-free.
+                let inside = (gx[i] >= 0.0) & (gx[i] <= max_x) & (gy[i] >= 0.0) & (gy[i] <= max_y);
+                out[i] = if inside { out[i] * (1.0 / 255.0) } else { 1.0 };
+            }
+        }
+    }
+
+    /// [`ShadowMap::lit_at`] for a map without a single cell square.
+    fn lit_at_small(&self, x_m: f64, y_m: f64) -> f32 {
         let fx = (x_m - self.origin_m[0]) / self.resolution_m;
         let fy = (y_m - self.origin_m[1]) / self.resolution_m;
         let (max_x, max_y) = ((self.cols.max(1) - 1) as f64, (self.rows.max(1) - 1) as f64);
-        if !(fx >= 0.0 && fx <= max_x && fy >= 0.0 && fy <= max_y) || self.lit.len() < self.cols * self.rows {
+        if !(fx >= 0.0 && fx <= max_x && fy >= 0.0 && fy <= max_y) {
             return 1.0;
         }
-        let c = (fx as usize).min(self.cols.saturating_sub(2));
-        let r = (fy as usize).min(self.rows.saturating_sub(2));
-        let (ax, ay) = ((fx - c as f64) as f32, (fy - r as f64) as f32);
-        let (c1, r1) = ((c + 1).min(self.cols - 1), (r + 1).min(self.rows - 1));
-        let at = |cc: usize, rr: usize| f32::from(self.lit[rr * self.cols + cc]);
-        let a = at(c, r) + ax * (at(c1, r) - at(c, r));
-        let b = at(c, r1) + ax * (at(c1, r1) - at(c, r1));
-        (a + ay * (b - a)) * (1.0 / 255.0)
+        let (c, r) = (fx.round() as usize, fy.round() as usize);
+        self.lit.get(r * self.cols + c).map_or(1.0, |&v| f32::from(v) * (1.0 / 255.0))
     }
 
     /// Sun visibility of cell `(col, row)` in `[0, 1]`, 1 outside the map.

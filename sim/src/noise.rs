@@ -224,6 +224,22 @@ fn corner_keys(seed: u32, iu: i32, iv: i32) -> (u32, u32, u32, u32) {
     (a, a.wrapping_add(0x9e37_79b1), b ^ seed, b.wrapping_add(0x85eb_ca77) ^ seed)
 }
 
+/// One lane of [`value_noise_lanes`] and [`value_noise_n`].
+#[inline(always)]
+fn value_noise_lane(seed: u32, u: f32, v: f32) -> f32 {
+    let (iu, fx) = floor_lane(u);
+    let (iv, fy) = floor_lane(v);
+    let sx = fx * fx * (3.0 - 2.0 * fx);
+    let sy = fy * fy * (3.0 - 2.0 * fy);
+    let (a0, a1, b0, b1) = corner_keys(seed, iu, iv);
+    // The top 24 bits as a signed integer: exact in f32, and the best mixed bits.
+    let value = |h: u32| (mix32_fast(h) >> 8) as i32 as f32;
+    let (v00, v10, v01, v11) = (value(a0 ^ b0), value(a1 ^ b0), value(a0 ^ b1), value(a1 ^ b1));
+    let p = v00 + sx * (v10 - v00);
+    let q = v01 + sx * (v11 - v01);
+    (p + sy * (q - p)) * (2.0 / 16_777_216.0) - 1.0
+}
+
 /// [`value_noise`]'s lane-parallel f32 sibling (its own lattice values, same statistics: mean 0,
 /// standard deviation [`VALUE_NOISE_STD`], range `[-1, 1]`), each lane with its own seed and
 /// coordinates. Coordinates must stay within ±2²² lattice cells.
@@ -231,17 +247,19 @@ fn corner_keys(seed: u32, iu: i32, iv: i32) -> (u32, u32, u32, u32) {
 pub fn value_noise_lanes(seeds: &[u32; LANES], u: &[f32; LANES], v: &[f32; LANES]) -> [f32; LANES] {
     let mut out = [0.0f32; LANES];
     for k in 0..LANES {
-        let (iu, fx) = floor_lane(u[k]);
-        let (iv, fy) = floor_lane(v[k]);
-        let sx = fx * fx * (3.0 - 2.0 * fx);
-        let sy = fy * fy * (3.0 - 2.0 * fy);
-        let (a0, a1, b0, b1) = corner_keys(seeds[k], iu, iv);
-        // The top 24 bits as a signed integer: exact in f32, and the best mixed bits.
-        let value = |h: u32| (mix32_fast(h) >> 8) as i32 as f32;
-        let (v00, v10, v01, v11) = (value(a0 ^ b0), value(a1 ^ b0), value(a0 ^ b1), value(a1 ^ b1));
-        let p = v00 + sx * (v10 - v00);
-        let q = v01 + sx * (v11 - v01);
-        out[k] = (p + sy * (q - p)) * (2.0 / 16_777_216.0) - 1.0;
+        out[k] = value_noise_lane(seeds[k], u[k], v[k]);
+    }
+    out
+}
+
+/// [`value_noise_lanes`] with one seed for any number of lanes: lane `k` is bit for bit
+/// `value_noise_lanes(&[seed; LANES], ..)` at `(u[k], v[k])`, whatever `N` (1 for a single
+/// point, a multiple of four to fill SIMD registers).
+#[inline(always)]
+pub fn value_noise_n<const N: usize>(seed: u32, u: &[f32; N], v: &[f32; N]) -> [f32; N] {
+    let mut out = [0.0f32; N];
+    for k in 0..N {
+        out[k] = value_noise_lane(seed, u[k], v[k]);
     }
     out
 }

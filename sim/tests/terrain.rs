@@ -594,6 +594,83 @@ fn albedo_has_texture_from_millimetres_to_metres() {
 }
 
 #[test]
+fn albedo_is_footprint_filtered_at_every_scale() {
+    // Below its footprint the filtered texture is smooth (differences over a quarter footprint a
+    // few per cent of the unfiltered ones: the octaves and mip levels that would vary there are
+    // gone), from millimetres (fine octaves) to metres (coarse mip levels), and the mean stays.
+    let terrain = Terrain::generate(&TerrainConfig::moon().with_size(40.0), 17);
+    let mut rng = sim::rng::stream(2, &[3]);
+    let points: Vec<(f64, f64)> = (0..10_000).map(|_| (rng.range(-15.0, 15.0), rng.range(-15.0, 15.0))).collect();
+    let n = points.len() as f64;
+    let mean_at = |footprint: f64| {
+        points.iter().map(|&(x, y)| f64::from(terrain.albedo_filtered(x, y, footprint))).sum::<f64>() / n
+    };
+    let diff_var = |spacing: f64, footprint: f64| {
+        let (mut sum, mut sum2) = (0.0, 0.0);
+        for &(x, y) in &points {
+            let d = f64::from(
+                terrain.albedo_filtered(x + spacing, y, footprint) - terrain.albedo_filtered(x, y, footprint),
+            );
+            sum += d;
+            sum2 += d * d;
+        }
+        sum2 / n - (sum / n).powi(2)
+    };
+    let mean = mean_at(0.0);
+    for footprint in [0.005, 0.02, 0.1, 0.5, 2.0] {
+        let (filtered, unfiltered) = (diff_var(footprint / 4.0, footprint), diff_var(footprint / 4.0, 0.0));
+        assert!(filtered < 0.05 * unfiltered, "{footprint} m: {filtered} vs {unfiltered} unfiltered");
+        let filtered_mean = mean_at(footprint);
+        assert!((filtered_mean - mean).abs() < 0.02 * mean, "{footprint} m: mean {filtered_mean} vs {mean}");
+    }
+}
+
+#[test]
+fn albedo_batches_and_lazy_bases_agree_with_single_lookups() {
+    let terrain = Terrain::generate_with_threads(&TerrainConfig::mars().with_size(20.0), 5, 2);
+    let mut rng = sim::rng::stream(4, &[2]);
+    // Runs of neighbouring points as in an image row, footprints from none to metres.
+    let mut xs = Vec::new();
+    let mut ys = Vec::new();
+    let mut footprints = Vec::new();
+    for run in 0..300 {
+        let (x0, y0) = (rng.range(-11.0, 11.0), rng.range(-11.0, 11.0));
+        let footprint = [0.0, 0.0013, 0.004, 0.03, 0.07, 0.2, 1.5][run % 7] * rng.range(0.8, 1.2);
+        for k in 0..(run % 37) {
+            xs.push(x0 + k as f64 * footprint.max(0.001));
+            ys.push(y0 + 0.3 * k as f64 * footprint);
+            footprints.push(footprint as f32);
+        }
+    }
+    let single: Vec<u32> =
+        (0..xs.len()).map(|i| terrain.albedo_filtered(xs[i], ys[i], f64::from(footprints[i])).to_bits()).collect();
+    // The whole slice, and the same points in uneven pieces: the same bits.
+    let mut out = vec![0.0f32; xs.len()];
+    terrain.albedo_filtered_many(&xs, &ys, &footprints, &mut out);
+    assert!(out.iter().zip(&single).all(|(a, &b)| a.to_bits() == b));
+    let mut start = 0;
+    while start < xs.len() {
+        let end = (start + 1 + start % 71).min(xs.len());
+        terrain.albedo_filtered_many(&xs[start..end], &ys[start..end], &footprints[start..end], &mut out[start..end]);
+        start = end;
+    }
+    assert!(out.iter().zip(&single).all(|(a, &b)| a.to_bits() == b));
+    // Another thread count, and a terrain assembled by hand that bakes its base on first use.
+    let other = Terrain::generate_with_threads(&terrain.config, 5, 1);
+    let assembled = Terrain { albedo_base: Default::default(), ..terrain.clone() };
+    for t in [&other, &assembled] {
+        t.albedo_filtered_many(&xs, &ys, &footprints, &mut out);
+        assert!(out.iter().zip(&single).all(|(a, &b)| a.to_bits() == b));
+    }
+    assert!(assembled.albedo_base.memory_bytes() > 0);
+    // Shadow lookups likewise.
+    let sun = Sun { azimuth_rad: 1.0, elevation_rad: 0.3, irradiance: 1.0 };
+    let map = ShadowMap::compute(&terrain.heightfield, &sun);
+    map.lit_many(&xs, &ys, &mut out);
+    assert!(out.iter().enumerate().all(|(i, v)| v.to_bits() == map.lit_at(xs[i], ys[i]).to_bits()));
+}
+
+#[test]
 fn albedo_depends_on_the_material() {
     let terrain = Terrain::generate(&TerrainConfig::moon().with_size(60.0), 17);
     let hf = &terrain.heightfield;
