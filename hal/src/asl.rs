@@ -317,7 +317,10 @@ fn open_cameras(root: &Path, pantilt: &[PanTiltRow]) -> Result<Cameras, SensorEr
             left.t_body_cam = t_body_left_zero;
             right.t_body_cam = t_body_left_zero * t_left_right;
         }
-        head = Some(pan_tilt_head(&yaml, &left, &right)?);
+        // Without the kinematics the angles in data.csv cannot be turned into poses: no head.
+        if yaml.contains("pan_axis_body_m") {
+            head = Some(pan_tilt_head(&yaml, &left, &right)?);
+        }
     }
     let mut calibration = pair_calibration(left, right);
     calibration.head = head;

@@ -281,6 +281,25 @@ fn head_reference_pose_replaces_the_tilted_t_bs() {
     assert!(calibration.rectified);
     let t_left_right = calibration.left.t_body_cam.inverse() * calibration.right.t_body_cam;
     assert!((t_left_right.translation.vector - Vector3::new(0.09, 0.0, 0.0)).norm() < 1e-12);
+    // Without the head's kinematics there is no head to turn angles into poses.
+    assert!(calibration.head.is_none());
+
+    // With them, the calibration carries the head (the LRU head written by the simulator).
+    let head = hal::sensor::PanTiltHead::lru();
+    let rows: Vec<String> = transform_rows(&head.t_body_cam(0.0, 0.0)).iter().map(|v| format!("{v:?}")).collect();
+    let yaml = format!(
+        "T_BS_cam0_pan0_tilt0:\n  data: [{}]\npan_axis_body_m: [0.3, 0.0, 1.05]\nstereo_centre_head_m: [0.06, 0.0, 0.0]\n",
+        rows.join(", ")
+    );
+    fs::write(mav0.join("pantilt0/sensor.yaml"), yaml).unwrap();
+    let calibration = AslDataset::open(&mav0).unwrap().stereo_calibration().unwrap();
+    let read_head = calibration.head.unwrap();
+    for (pan, tilt) in [(0.0, 0.0), (0.7, 0.3), (-2.5, -0.4)] {
+        let (a, b) = (calibration.t_body_left(pan, tilt), head.t_body_cam(pan, tilt));
+        assert!((a.translation.vector - b.translation.vector).norm() < 1e-12);
+        assert!(a.rotation.angle_to(&b.rotation) < 1e-12);
+    }
+    assert!((read_head.baseline_m - 0.09).abs() < 1e-12);
 }
 
 #[test]
