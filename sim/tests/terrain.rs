@@ -698,61 +698,59 @@ fn albedo_depends_on_the_material() {
     }
 }
 
-/// Full-size presets: generation time, slope statistics, counts. Run with
-/// `cargo test --release -p sim --test terrain -- --ignored --nocapture`.
+/// The full-size presets as the issue asks for them: 200 m × 200 m at 5 cm, natural slopes up to
+/// (not beyond) 30°, rocks of 0.1–1 m, craters, crater-edge and ditch negative obstacles, cast
+/// shadows. Prints the statistics quoted in the README (`-- --nocapture`); timing is the render
+/// benchmark's job.
 #[test]
-#[ignore = "full-size report, several seconds"]
-fn full_size_preset_report() {
+fn full_size_presets_meet_the_site_requirements() {
     for (name, config) in [("moon", TerrainConfig::moon()), ("mars", TerrainConfig::mars())] {
-        let start = std::time::Instant::now();
+        assert!(config.size_m[0] >= 200.0 && config.size_m[1] >= 200.0 && config.resolution_m <= 0.05);
         let terrain = Terrain::generate(&config, 1);
-        let generate_s = start.elapsed().as_secs_f64();
-        let start = std::time::Instant::now();
-        let sun = Sun { azimuth_rad: 0.6, elevation_rad: 20f64.to_radians(), irradiance: 1.0 };
-        let shadows = ShadowMap::compute(&terrain.heightfield, &sun);
-        let shadow_s = start.elapsed().as_secs_f64();
-        let start = std::time::Instant::now();
-        let obstacles = terrain.negative_obstacles();
-        let obstacles_s = start.elapsed().as_secs_f64();
-        let n = 2_000_000;
-        let start = std::time::Instant::now();
-        let mut acc = 0.0f32;
-        for i in 0..n {
-            let x = -90.0 + 180.0 * (i as f64 / n as f64);
-            acc += terrain.albedo_filtered(x, 0.37 * x + 1.0, 0.0014);
-        }
-        let albedo_ns = start.elapsed().as_secs_f64() * 1e9 / n as f64;
+        let hf = &terrain.heightfield;
+        assert!((hf.cols - 1) as f64 * hf.resolution_m >= 200.0 && (hf.rows - 1) as f64 * hf.resolution_m >= 200.0);
+
         let slopes = natural_slopes_deg(&terrain);
         let frac = |t: f64| 100.0 * slopes.iter().filter(|&&s| s > t).count() as f64 / slopes.len() as f64;
+        let max_slope = slopes[slopes.len() - 1];
+        // The slope limit is 30° on the mesh; 0.1° covers the f32 heights.
+        assert!(max_slope <= 30.1, "{name}: natural slope {max_slope}°");
+        assert!(frac(15.0) > 1.0 && frac(25.0) > 0.05, "{name}: too gentle, {} % above 15°", frac(15.0));
+
+        assert!(terrain.rocks.len() > 100, "{name}: {} rocks", terrain.rocks.len());
+        assert!(terrain.rocks.iter().all(|r| (0.1..=1.0).contains(&r.height_m)));
+        assert!(terrain.rocks.iter().any(|r| r.height_m > 0.5));
+        assert!(terrain.craters.len() > 20, "{name}: {} craters", terrain.craters.len());
+        let obstacles = terrain.negative_obstacles();
+        let crater_edges = obstacles.iter().filter(|o| o.kind == NegativeObstacleKind::CraterEdge).count();
+        assert!(crater_edges > 0 && obstacles.len() > crater_edges, "{name}: {crater_edges} of {}", obstacles.len());
+
+        let sun = Sun { azimuth_rad: 0.6, elevation_rad: 20f64.to_radians(), irradiance: 1.0 };
+        let shadows = ShadowMap::compute(hf, &sun);
         let shadowed = shadows.lit.iter().filter(|&&v| v < 128).count() as f64 / shadows.lit.len() as f64;
+        assert!(shadowed > 0.001 && shadowed < 0.5, "{name}: {:.2} % shadowed", 100.0 * shadowed);
+
         println!(
-            "{name}: {} × {} cells, generate {generate_s:.2} s, shadows {shadow_s:.2} s ({:.1} % shadowed at 20°), \
-             obstacles {obstacles_s:.2} s, albedo {albedo_ns:.1} ns/call at 1.4 mm footprint (sum {acc:.0})",
-            terrain.heightfield.cols,
-            terrain.heightfield.rows,
-            100.0 * shadowed
-        );
-        println!(
-            "  craters {}, rocks {} (≥0.3 m: {}), ditches {}, negative obstacles {} (crater edges {})",
+            "{name}: {} × {} cells, craters {}, rocks {} (≥ 0.3 m: {}), ditches {}, negative obstacles {} \
+             (crater edges {crater_edges}), {:.1} % shadowed at 20°",
+            hf.cols,
+            hf.rows,
             terrain.craters.len(),
             terrain.rocks.len(),
             terrain.rocks.iter().filter(|r| r.height_m >= 0.3).count(),
             terrain.ditches.len(),
             obstacles.len(),
-            obstacles.iter().filter(|o| o.kind == NegativeObstacleKind::CraterEdge).count()
+            100.0 * shadowed
         );
         println!(
-            "  natural slopes: p50 {:.1}°, p90 {:.1}°, p95 {:.1}°, p99 {:.1}°, p99.99 {:.1}°, max {:.1}°; \
-             > 15°: {:.2} %, > 25°: {:.3} %, > 30°: {:.4} %",
+            "  natural slopes: p50 {:.1}°, p90 {:.1}°, p95 {:.1}°, p99 {:.1}°, max {max_slope:.1}°; \
+             > 15°: {:.2} %, > 25°: {:.3} %",
             percentile(&slopes, 0.5),
             percentile(&slopes, 0.9),
             percentile(&slopes, 0.95),
             percentile(&slopes, 0.99),
-            percentile(&slopes, 0.9999),
-            slopes[slopes.len() - 1],
             frac(15.0),
-            frac(25.0),
-            frac(30.0)
+            frac(25.0)
         );
     }
 }
