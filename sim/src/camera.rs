@@ -11,7 +11,7 @@
 
 use hal::sensor::{CameraCalibration, Distortion, Pinhole, StereoCalibration};
 pub use hal::sensor::{PanTiltHead, r_flu_optical};
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// Width × height the rover's FPGA matches (thesis §7.1).
 pub const FULL_WIDTH_PX: u32 = 1024;
@@ -115,6 +115,15 @@ impl StereoCamera {
         let right = CameraCalibration { t_body_cam: t_body_cam * self.t_left_right(), ..left };
         StereoCalibration { left, right, rectified: true, baseline_m: self.baseline_m, head }
     }
+}
+
+/// Pose of a camera's optical frame at `position_world_m`, heading `yaw_rad` (from +x towards +y)
+/// and tilted down by `tilt_rad` (the pan-tilt head's convention), with no roll.
+pub fn t_world_cam_looking(position_world_m: &Vector3<f64>, yaw_rad: f64, tilt_rad: f64) -> Isometry3<f64> {
+    let rotation = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw_rad)
+        * Rotation3::from_axis_angle(&Vector3::y_axis(), tilt_rad)
+        * r_flu_optical();
+    Isometry3::from_parts(Translation3::from(*position_world_m), UnitQuaternion::from_rotation_matrix(&rotation))
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ use fpga_model::SgmConfig;
 use fpga_model::fast::Matcher;
 use fpga_model::image::GrayImage;
 use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use sim::camera::{StereoCamera, r_flu_optical};
+use sim::camera::{StereoCamera, t_world_cam_looking};
 use sim::lighting::{Reflectance, ShadowMap, Sun};
 use sim::markers::{TAG_CELLS, TAG36H11_CODES, tag_cells};
 use sim::render::{Quad, QuadSurface, Renderer, Scene, SensorModel, raycast_depth_m};
@@ -74,10 +74,7 @@ fn rover_camera(terrain: &Terrain, x: f64, y: f64, height_m: f64, yaw: f64, tilt
     let c = ((x - hf.origin_m[0]) / hf.resolution_m).round() as isize;
     let r = ((y - hf.origin_m[1]) / hf.resolution_m).round() as isize;
     let ground = f64::from(hf.height_at_cell(c, r));
-    let rotation = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw)
-        * Rotation3::from_axis_angle(&Vector3::y_axis(), tilt)
-        * r_flu_optical();
-    Isometry3::from_parts(Translation3::new(x, y, ground + height_m), UnitQuaternion::from_rotation_matrix(&rotation))
+    t_world_cam_looking(&Vector3::new(x, y, ground + height_m), yaw, tilt)
 }
 
 fn quantile(sorted: &[f64], q: f64) -> f64 {

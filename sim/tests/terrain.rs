@@ -552,23 +552,25 @@ fn rocks_cast_shadows() {
     assert!(map.lit_at(rock.base_m.x + behind, rock.base_m.y) > 0.5, "{rock:?}");
 }
 
+/// Variance of the filtered albedo's differences over `spacing` along x, at `points`.
+fn albedo_difference_variance(terrain: &Terrain, points: &[(f64, f64)], spacing: f64, footprint: f64) -> f64 {
+    let (mut sum, mut sum2) = (0.0, 0.0);
+    for &(x, y) in points {
+        let d =
+            f64::from(terrain.albedo_filtered(x + spacing, y, footprint) - terrain.albedo_filtered(x, y, footprint));
+        sum += d;
+        sum2 += d * d;
+    }
+    let n = points.len() as f64;
+    sum2 / n - (sum / n).powi(2)
+}
+
 #[test]
 fn albedo_has_texture_from_millimetres_to_metres() {
     let terrain = Terrain::generate(&TerrainConfig::moon().with_size(40.0), 17);
     let mut rng = sim::rng::stream(2, &[1]);
     let points: Vec<(f64, f64)> = (0..20_000).map(|_| (rng.range(-15.0, 15.0), rng.range(-15.0, 15.0))).collect();
-    let diff_var = |spacing: f64, footprint: f64| {
-        let (mut sum, mut sum2) = (0.0, 0.0);
-        for &(x, y) in &points {
-            let d = f64::from(
-                terrain.albedo_filtered(x + spacing, y, footprint) - terrain.albedo_filtered(x, y, footprint),
-            );
-            sum += d;
-            sum2 += d * d;
-        }
-        let n = points.len() as f64;
-        sum2 / n - (sum / n).powi(2)
-    };
+    let diff_var = |spacing: f64, footprint: f64| albedo_difference_variance(&terrain, &points, spacing, footprint);
     let mean = points.iter().map(|&(x, y)| f64::from(terrain.albedo_at(x, y))).sum::<f64>() / points.len() as f64;
     assert!(
         points.iter().all(|&(x, y)| (0.0..1.0).contains(&terrain.albedo_at(x, y)) && terrain.albedo_at(x, y) > 0.0)
@@ -605,17 +607,7 @@ fn albedo_is_footprint_filtered_at_every_scale() {
     let mean_at = |footprint: f64| {
         points.iter().map(|&(x, y)| f64::from(terrain.albedo_filtered(x, y, footprint))).sum::<f64>() / n
     };
-    let diff_var = |spacing: f64, footprint: f64| {
-        let (mut sum, mut sum2) = (0.0, 0.0);
-        for &(x, y) in &points {
-            let d = f64::from(
-                terrain.albedo_filtered(x + spacing, y, footprint) - terrain.albedo_filtered(x, y, footprint),
-            );
-            sum += d;
-            sum2 += d * d;
-        }
-        sum2 / n - (sum / n).powi(2)
-    };
+    let diff_var = |spacing: f64, footprint: f64| albedo_difference_variance(&terrain, &points, spacing, footprint);
     let mean = mean_at(0.0);
     for footprint in [0.005, 0.02, 0.1, 0.5, 2.0] {
         let (filtered, unfiltered) = (diff_var(footprint / 4.0, footprint), diff_var(footprint / 4.0, 0.0));

@@ -29,6 +29,8 @@ mod raycast;
 mod sensor;
 mod shade;
 
+pub use raycast::raycast_depth_m;
+
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 use crate::camera::StereoCamera;
@@ -624,16 +626,4 @@ impl View {
         let gap = |k: usize| (lo[k] - o[k]).max(o[k] - hi[k]).max(0.0);
         (gap(0).powi(2) + gap(1).powi(2) + gap(2).powi(2)).sqrt()
     }
-}
-
-/// Exact z-depth of the terrain mesh (robots ignored) seen through pixel `(u, v)` of the camera
-/// at `t_world_cam`, by ray casting; `None` when the ray leaves the terrain.
-pub fn raycast_depth_m(
-    terrain: &Terrain,
-    camera: &StereoCamera,
-    t_world_cam: &Isometry3<f64>,
-    u: f64,
-    v: f64,
-) -> Option<f64> {
-    raycast::depth_m(terrain, camera, t_world_cam, u, v)
 }

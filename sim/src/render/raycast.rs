@@ -131,8 +131,9 @@ fn hit_square(
     }
 }
 
-/// See [`super::raycast_depth_m`].
-pub(crate) fn depth_m(
+/// Exact z-depth of the terrain mesh (robots ignored) seen through pixel `(u, v)` of the camera
+/// at `t_world_cam`, by ray casting; `None` when the ray leaves the terrain.
+pub fn raycast_depth_m(
     terrain: &Terrain,
     camera: &StereoCamera,
     t_world_cam: &Isometry3<f64>,
