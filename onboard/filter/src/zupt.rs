@@ -1,0 +1,1 @@
+//! Standstill detection (in progress).

@@ -1,0 +1,36 @@
+//! On-board vision: everything between the stereo camera and the filter and mapper.
+//!
+//! - [`rectify`]: raw pinhole + radial-tangential pairs into the canonical rectified pair.
+//! - [`pyramid`], [`features`], [`klt`]: image pyramids, grid-bucketed corner detection and
+//!   pyramidal Lucas-Kanade tracking in the left image.
+//! - [`stereo_match`]: depth of a feature from the SGM disparity map or sparse matching.
+//! - [`geometry`]: P3P + RANSAC 3D–2D pose, nonlinear refinement, propagated-noise covariance.
+//! - [`odometry`]: keyframe stereo visual odometry (thesis §3.2, §4.1.1) producing [`VoDelta`]s.
+//!
+//! # Frames and conventions
+//!
+//! Body and camera frames are those of `hal::sensor`: body x forward, y left, z up (= IMU frame);
+//! camera = the left rectified camera's optical frame (x right, y down, z forward). A pose
+//! `t_a_b` maps coordinates in frame `b` into frame `a`.
+//!
+//! **Relative-pose covariance** (used by [`VoDelta`] and `filter`): 6×6 over the perturbation
+//! `ξ = [δt; δθ]` (translation first, then rotation, metres and radians) of `t_a_b` with
+//! `t_true = t̂ + δt` (in frame `a`) and `R_true = R̂ · Exp(δθ)` (δθ in frame `b`).
+//!
+//! This crate does no I/O: images come in as slices, results go out as values.
+
+pub mod delta;
+pub mod features;
+pub mod geometry;
+pub mod image;
+pub mod keyframes;
+pub mod klt;
+pub mod odometry;
+pub mod pyramid;
+pub mod rectify;
+pub mod stereo_match;
+
+pub use delta::VoDelta;
+pub use image::ImageView;
+pub use odometry::{StereoOdometry, VoConfig, VoError, VoOutput, VoStats};
+pub use rectify::{RectifyError, Rectifier};
