@@ -5,6 +5,7 @@ pub mod asl;
 pub mod can;
 pub mod emulator;
 pub mod keyfile;
+pub mod kitti;
 pub mod link;
 pub mod sensor;
 pub mod serial;

@@ -1,5 +1,6 @@
 //! `onboard`: the rover firmware shell. Subcommands so far:
 //! - `posegraph`: optimize a g2o pose graph with the on-board back-end (batch or incremental).
+//! - `vio`: stereo visual(-inertial) odometry on a recorded dataset, optionally scored.
 
 mod cli;
 
@@ -9,6 +10,7 @@ const USAGE: &str = "usage: onboard <command> [options]
 
 commands:
   posegraph   optimize a g2o pose graph (batch Levenberg-Marquardt or incremental iSAM2-style)
+  vio         stereo odometry + IMU filter on a EuRoC/ASL or KITTI dataset, TUM output, scoring
 
 run `onboard <command> --help` for a command's options";
 
@@ -21,6 +23,7 @@ fn main() -> ExitCode {
     let rest: Vec<std::ffi::OsString> = args.collect();
     match command.to_str() {
         Some("posegraph") => cli::posegraph::main(rest),
+        Some("vio") => cli::vio::main(rest),
         Some("--help" | "-h" | "help") => {
             println!("{USAGE}");
             ExitCode::SUCCESS
