@@ -3,7 +3,7 @@
 //! against ground truth, averaged over the runs, compared with the two-sided 95 % chi-square
 //! bounds of that average.
 //!
-//! `cargo run --release -p onboard --example sim_nees -- [--runs N] [--duration S] [--downscale N] [--no-wheel] [--vo-every-frame]`
+//! `cargo run --release -p onboard --example sim_nees -- [--runs N] [--duration S] [--downscale N] [--no-wheel] [--vo-keyframes] [--vo-scale F] [--no-zupt]`
 
 #[path = "../tests/common/sim_run.rs"]
 mod sim_run;
@@ -34,6 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         if std::env::args().any(|a| a == "--vo-keyframes") {
             options.vo_updates = onboard::vio::VoUpdates::Keyframes;
         }
+        options.zupt = !std::env::args().any(|a| a == "--no-zupt");
         options.vo_covariance_scale = arg("--vo-scale", options.vo_covariance_scale);
         let run = sim_run::run(&world, options, true, Some(period_ns))?;
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;

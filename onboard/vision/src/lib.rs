@@ -33,4 +33,4 @@ pub mod stereo_match;
 pub use delta::VoDelta;
 pub use image::ImageView;
 pub use odometry::{StereoOdometry, VoConfig, VoError, VoOutput, VoStats};
-pub use rectify::{RectifyError, Rectifier};
+pub use rectify::{Rectifier, RectifyError};

@@ -32,7 +32,7 @@ const USAGE: &str = "usage: onboard vio --dataset DIR [--out EST.tum] [--gt GT] 
   --no-wheel             ignore wheel odometry
   --no-zupt              no zero-velocity updates
   --no-prior             do not seed the odometry with the filter's motion prediction
-  --vo-every-frame       fuse every frame's keyframe delta (default: keyframe-to-keyframe deltas only)
+  --vo-keyframes         fuse only keyframe-to-keyframe deltas (default: every frame's delta)
   --switch-distance M    frame-of-reference switch every M metres (thesis: 7)
   --switch-sigma M       ... or when the position sigma reaches M metres (thesis: 0.2)
   --gravity MPS2         gravity at the site (default 9.80665)
@@ -51,7 +51,7 @@ struct Options {
     no_wheel: bool,
     no_zupt: bool,
     no_prior: bool,
-    vo_every_frame: bool,
+    vo_keyframes: bool,
     switch: SwitchPolicy,
     gravity_mps2: f64,
     all_imu: bool,
@@ -84,7 +84,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<Options>, String> {
         no_wheel: false,
         no_zupt: false,
         no_prior: false,
-        vo_every_frame: false,
+        vo_keyframes: false,
         switch: SwitchPolicy::default(),
         gravity_mps2: onboard::vio::EARTH_GRAVITY_MPS2,
         all_imu: false,
@@ -115,7 +115,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<Options>, String> {
             Long("no-wheel") => options.no_wheel = true,
             Long("no-zupt") => options.no_zupt = true,
             Long("no-prior") => options.no_prior = true,
-            Long("vo-every-frame") => options.vo_every_frame = true,
+            Long("vo-keyframes") => options.vo_keyframes = true,
             Long("switch-distance") => {
                 options.switch.distance_m =
                     Some(positive("--switch-distance", &string_value(&mut parser, "--switch-distance")?)?);
@@ -165,7 +165,7 @@ fn run(options: &Options) -> Result<Report, String> {
         // 2 s of images and 144 s of IMU): stop once the last frame's result has arrived.
         end_stamp_ns: (!options.all_imu).then(|| last_image_ns.saturating_add(latency_ns)),
         vo_prior: !options.no_prior,
-        vo_updates: if options.vo_every_frame { VoUpdates::EveryFrame } else { VoUpdates::Keyframes },
+        vo_updates: if options.vo_keyframes { VoUpdates::Keyframes } else { VoUpdates::EveryFrame },
         ..VioOptions::default()
     };
     let mut pipeline = VioPipeline::new(&dataset.calibration, vio_options).map_err(|e| e.to_string())?;
