@@ -2,3 +2,36 @@
 
 pub mod posegraph;
 pub mod vio;
+
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+/// Parses and runs a subcommand: `--help` prints the usage (exit 0), a usage error prints it with
+/// the message (exit 2), a failed run prints the message (exit 1). `Ok` carries the options and
+/// the report for the subcommand to print.
+pub fn parse_and_run<O, R>(
+    name: &str,
+    usage: &str,
+    args: Vec<OsString>,
+    parse: impl FnOnce(Vec<OsString>) -> Result<Option<O>, String>,
+    run: impl FnOnce(&O) -> Result<R, String>,
+) -> Result<(O, R), ExitCode> {
+    let options = match parse(args) {
+        Ok(Some(options)) => options,
+        Ok(None) => {
+            println!("{usage}");
+            return Err(ExitCode::SUCCESS);
+        }
+        Err(message) => {
+            eprintln!("onboard {name}: {message}\n\n{usage}");
+            return Err(ExitCode::from(2));
+        }
+    };
+    match run(&options) {
+        Ok(report) => Ok((options, report)),
+        Err(message) => {
+            eprintln!("onboard {name}: {message}");
+            Err(ExitCode::FAILURE)
+        }
+    }
+}

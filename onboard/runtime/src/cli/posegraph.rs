@@ -128,23 +128,9 @@ fn run(options: &Options) -> Result<Report, String> {
 }
 
 pub fn main(args: Vec<OsString>) -> ExitCode {
-    let options = match parse_args(args) {
-        Ok(Some(options)) => options,
-        Ok(None) => {
-            println!("{USAGE}");
-            return ExitCode::SUCCESS;
-        }
-        Err(message) => {
-            eprintln!("onboard posegraph: {message}\n\n{USAGE}");
-            return ExitCode::from(2);
-        }
-    };
-    let report = match run(&options) {
-        Ok(report) => report,
-        Err(message) => {
-            eprintln!("onboard posegraph: {message}");
-            return ExitCode::FAILURE;
-        }
+    let (options, report) = match super::parse_and_run("posegraph", USAGE, args, parse_args, run) {
+        Ok(done) => done,
+        Err(code) => return code,
     };
     if options.json {
         let mut object = serde_json::json!({

@@ -323,23 +323,9 @@ fn print_text(options: &Options, report: &Report) {
 }
 
 pub fn main(args: Vec<OsString>) -> ExitCode {
-    let options = match parse_args(args) {
-        Ok(Some(options)) => options,
-        Ok(None) => {
-            println!("{USAGE}");
-            return ExitCode::SUCCESS;
-        }
-        Err(message) => {
-            eprintln!("onboard vio: {message}\n\n{USAGE}");
-            return ExitCode::from(2);
-        }
-    };
-    let report = match run(&options) {
-        Ok(report) => report,
-        Err(message) => {
-            eprintln!("onboard vio: {message}");
-            return ExitCode::FAILURE;
-        }
+    let (options, report) = match super::parse_and_run("vio", USAGE, args, parse_args, run) {
+        Ok(done) => done,
+        Err(code) => return code,
     };
     if options.json {
         println!("{}", json(&options, &report));
