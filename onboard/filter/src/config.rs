@@ -2,6 +2,9 @@
 
 use hal::asl::ImuNoiseDensities;
 
+/// Correlation time over which [`FilterConfig::gyro_scale_sigma`] acts as rate noise.
+pub const GYRO_SCALE_CORRELATION_S: f64 = 1.0;
+
 /// Continuous-time IMU noise (the densities of a datasheet or EuRoC's `imu0/sensor.yaml`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuNoise {
@@ -94,8 +97,21 @@ pub struct FilterConfig {
     pub max_clone_lag_ns: u64,
     /// Chi-square gate probability (e.g. 0.999 → 22.46 for 6 DoF).
     pub gate_probability: f64,
+    /// Relative gyro scale and axis-misalignment error (1σ, dimensionless). White noise and bias
+    /// do not cover it: a 0.5 % scale error turns a 90° turn into a 0.45° attitude error, far
+    /// above the white noise of the same second. It enters the process noise as extra rate noise
+    /// of density `σ·|ω|·√τ` with τ = [`GYRO_SCALE_CORRELATION_S`] (one update interval: the
+    /// error is systematic over a turn and decorrelates as turns change). Zero for a perfect
+    /// scale (the simulator's IMU).
+    pub gyro_scale_sigma: f64,
     /// Floor for the wheel odometry's own velocity sigmas (slip is not in them).
     pub wheel_min_sigma_mps: f64,
+    /// Correlation time of the wheel odometry's error. Slip follows the soil and the grade, so
+    /// consecutive samples share most of their error: treated as independent, a 50 Hz stream
+    /// would average the slip away and be trusted √(τ·f) times too much. Each sample's variance is
+    /// scaled by `τ / Δt` (Δt since the previous sample), so the odometry adds the information of
+    /// one independent sample per `τ`. Zero treats the samples as independent.
+    pub wheel_error_correlation_s: f64,
     /// Sigma of the zero-velocity pseudo-measurement (vibration of a standing rover).
     pub zupt_velocity_sigma_mps: f64,
     /// Sigma of the zero-rate part of a zero-velocity update (one gyro sample); `None` derives it
@@ -119,7 +135,9 @@ impl FilterConfig {
             max_pending_clone_age_ns: 2_000_000_000,
             max_clone_lag_ns: 20_000_000,
             gate_probability: 0.999,
+            gyro_scale_sigma: 0.0,
             wheel_min_sigma_mps: 0.01,
+            wheel_error_correlation_s: 1.0,
             zupt_velocity_sigma_mps: 0.005,
             zupt_rate_sigma_radps: None,
             // (1e-6 rad)²: far below any real roll/pitch uncertainty, far above round-off.
@@ -137,6 +155,7 @@ impl Default for FilterConfig {
             accel_noise_density: 60e-6 * 9.80665,
             accel_random_walk: 1e-5,
         };
-        FilterConfig::from_imu_noise(imu, 1.62)
+        // The MTi-10's factory calibration leaves ~0.1 % of scale and misalignment error.
+        FilterConfig { gyro_scale_sigma: 0.001, ..FilterConfig::from_imu_noise(imu, 1.62) }
     }
 }

@@ -108,6 +108,8 @@ pub struct Filter {
     pub(crate) bg: Vector3<f64>,
     pub(crate) gravity: Vector3<f64>,
     pub(crate) last_imu: Option<ImuSample>,
+    /// Stamp of the previous wheel odometry sample (its rate sets the correlation inflation).
+    pub(crate) last_wheel_stamp_ns: Option<u64>,
     pub(crate) clones: Vec<PoseClone>,
     pub(crate) cov: DMatrix<f64>,
     /// Chi-square gates for 1..=6 degrees of freedom.
@@ -138,6 +140,7 @@ impl Filter {
             ba: Vector3::zeros(),
             bg: Vector3::zeros(),
             last_imu: None,
+            last_wheel_stamp_ns: None,
             clones: Vec::with_capacity(max_clones),
             cov: DMatrix::zeros(n_max, n_max),
             gates,
@@ -223,6 +226,7 @@ impl Filter {
         self.ba = Vector3::zeros();
         self.bg = bg;
         self.last_imu = None;
+        self.last_wheel_stamp_ns = None;
         self.clones.clear();
     }
 

@@ -11,6 +11,7 @@
 //! couple position to attitude and biases) and the noise densities integrated over `dt`.
 
 use crate::FilterError;
+use crate::config::GYRO_SCALE_CORRELATION_S;
 use crate::eskf::{Filter, IBA, IBG, IP, ITH, IV, NX};
 use crate::math::{exp, skew};
 use hal::sensor::ImuSample;
@@ -85,11 +86,12 @@ impl Filter {
 
         let r_mid = (self.q * exp(&(-0.5 * w_mid * dt))).to_rotation_matrix().into_inner();
         let f_local = 0.5 * (r0 * f0 + r1 * f1);
-        self.propagate_covariance(dt, &r_mid, &f_local);
+        self.propagate_covariance(dt, &r_mid, &f_local, &w_mid);
         self.stamp_ns = t1_ns;
     }
 
-    fn propagate_covariance(&mut self, dt: f64, r: &Matrix3<f64>, f_local: &Vector3<f64>) {
+    /// `w` is the bias-corrected rate over the step.
+    fn propagate_covariance(&mut self, dt: f64, r: &Matrix3<f64>, f_local: &Vector3<f64>, w: &Vector3<f64>) {
         let i3 = Matrix3::identity();
         let fx = skew(f_local);
         let dt2 = 0.5 * dt * dt;
@@ -104,7 +106,12 @@ impl Filter {
 
         let n = &self.config.imu;
         let qa = n.accel_noise_density * n.accel_noise_density * dt;
-        let qg = n.gyro_noise_density * n.gyro_noise_density * dt;
+        // Scale and misalignment errors rotate the attitude in proportion to the turn: spread as
+        // white rate noise over their correlation time (see `FilterConfig::gyro_scale_sigma`).
+        let scale = self.config.gyro_scale_sigma;
+        let qg = (n.gyro_noise_density * n.gyro_noise_density
+            + scale * scale * w.norm_squared() * GYRO_SCALE_CORRELATION_S)
+            * dt;
         let qba = n.accel_random_walk * n.accel_random_walk * dt;
         let qbg = n.gyro_random_walk * n.gyro_random_walk * dt;
         let pxx: SMatrix<f64, NX, NX> = self.cov.fixed_view::<NX, NX>(0, 0).into_owned();

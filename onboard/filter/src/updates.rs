@@ -63,10 +63,17 @@ impl Filter {
             return Err(FilterError::BadInput("non-finite wheel odometry".into()));
         }
         let floor = self.config.wheel_min_sigma_mps;
+        let tau_s = self.config.wheel_error_correlation_s;
+        let interval_s = match self.last_wheel_stamp_ns {
+            Some(last) if s.stamp_ns > last => (s.stamp_ns - last) as f64 * 1e-9,
+            _ => tau_s,
+        };
+        self.last_wheel_stamp_ns = Some(s.stamp_ns);
+        let inflation = if tau_s > 0.0 { (tau_s / interval_s.clamp(1e-3, tau_s)).max(1.0) } else { 1.0 };
         let mut noise = SMatrix::<f64, 3, 3>::zeros();
         for i in 0..3 {
             let sigma = s.sigma[i].max(floor);
-            noise[(i, i)] = sigma * sigma;
+            noise[(i, i)] = sigma * sigma * inflation;
         }
         let r_t = self.q.to_rotation_matrix().into_inner().transpose();
         let residual = s.linear_mps - r_t * self.v;

@@ -6,6 +6,8 @@
 //! - [`stereo_match`]: depth of a feature from the SGM disparity map or sparse matching.
 //! - [`geometry`]: P3P + RANSAC 3D–2D pose, nonlinear refinement, propagated-noise covariance.
 //! - [`odometry`]: keyframe stereo visual odometry (thesis §3.2, §4.1.1) producing [`VoDelta`]s.
+//! - [`depth`], [`obstacles`]: depth images and obstacle classification on them (thesis §5.1.1):
+//!   negative edges, stereo-error-adaptive steps on a 5 cm height map, the rolling local map.
 //!
 //! # Frames and conventions
 //!
@@ -20,17 +22,20 @@
 //! This crate does no I/O: images come in as slices, results go out as values.
 
 pub mod delta;
+pub mod depth;
 pub mod features;
 pub mod geometry;
 pub mod image;
 pub mod keyframes;
 pub mod klt;
+pub mod obstacles;
 pub mod odometry;
 pub mod pyramid;
 pub mod rectify;
 pub mod stereo_match;
 
 pub use delta::VoDelta;
+pub use depth::{DepthImage, StereoGeometry};
 pub use image::ImageView;
 pub use odometry::{StereoOdometry, VoConfig, VoError, VoOutput, VoStats};
 pub use rectify::{Rectifier, RectifyError};

@@ -36,6 +36,8 @@ const USAGE: &str = "usage: onboard vio --dataset DIR [--out EST.tum] [--gt GT] 
   --switch-distance M    frame-of-reference switch every M metres (thesis: 7)
   --switch-sigma M       ... or when the position sigma reaches M metres (thesis: 0.2)
   --gravity MPS2         gravity at the site (default 9.80665)
+  --gyro-scale-sigma S   relative gyro scale/misalignment error the filter assumes (default
+                         0.005, EuRoC's ADIS16448; 0 for the simulator's ideal-scale gyro)
   --all-imu              also integrate IMU data after the last image (default: stop there)";
 
 #[derive(Debug)]
@@ -54,6 +56,7 @@ struct Options {
     vo_keyframes: bool,
     switch: SwitchPolicy,
     gravity_mps2: f64,
+    gyro_scale_sigma: f64,
     all_imu: bool,
 }
 
@@ -87,6 +90,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<Options>, String> {
         vo_keyframes: false,
         switch: SwitchPolicy::default(),
         gravity_mps2: onboard::vio::EARTH_GRAVITY_MPS2,
+        gyro_scale_sigma: onboard::vio::EUROC_GYRO_SCALE_SIGMA,
         all_imu: false,
     };
     let mut dataset = None;
@@ -124,6 +128,14 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<Options>, String> {
                 options.switch.sigma_m =
                     Some(positive("--switch-sigma", &string_value(&mut parser, "--switch-sigma")?)?)
             }
+            Long("gyro-scale-sigma") => {
+                let value = string_value(&mut parser, "--gyro-scale-sigma")?;
+                options.gyro_scale_sigma = value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite() && *v >= 0.0)
+                    .ok_or_else(|| format!("--gyro-scale-sigma: not a non-negative number: {value}"))?;
+            }
             Long("gravity") => options.gravity_mps2 = positive("--gravity", &string_value(&mut parser, "--gravity")?)?,
             Long("all-imu") => options.all_imu = true,
             Short('h') | Long("help") => return Ok(None),
@@ -157,10 +169,13 @@ fn run(options: &Options) -> Result<Report, String> {
         zupt: !options.no_zupt,
         latency_ns,
         switch: options.switch,
-        filter: FilterConfig::from_imu_noise(
-            dataset.imu_noise.unwrap_or(onboard::vio::EUROC_IMU_NOISE),
-            options.gravity_mps2,
-        ),
+        filter: FilterConfig {
+            gyro_scale_sigma: options.gyro_scale_sigma,
+            ..FilterConfig::from_imu_noise(
+                dataset.imu_noise.unwrap_or(onboard::vio::EUROC_IMU_NOISE),
+                options.gravity_mps2,
+            )
+        },
         // IMU data past the last image has no vision to correct it (EuRoC V1_01's excerpt has
         // 2 s of images and 144 s of IMU): stop once the last frame's result has arrived.
         end_stamp_ns: (!options.all_imu).then(|| last_image_ns.saturating_add(latency_ns)),

@@ -3,13 +3,14 @@
 use std::collections::VecDeque;
 use std::time::Instant;
 
-use filter::{Filter, FilterHealth, FrameSwitch, RelativePoseMeasurement, UpdateOutcome};
+use filter::{
+    Filter, FilterHealth, FrameSwitch, RelativePoseMeasurement, StandstillConfig, StandstillDetector, UpdateOutcome,
+};
 use fpga_model::{DisparityImage, GrayImage};
 use hal::sensor::{ImuSample, SensorEvent, SensorSource, StereoCalibration, StereoFrame, WheelOdomSample};
 use nalgebra::{Isometry3, Vector3};
 use vision::{Rectifier, StereoOdometry, VoOutput};
 
-use super::standstill::{StandstillConfig, StandstillDetector};
 use super::{VioError, VioOptions, VoUpdates};
 
 /// ZUPTs are applied at this period while standing: consecutive IMU samples are not independent
@@ -473,7 +474,7 @@ impl VioPipeline {
     }
 
     fn apply_zupt(&mut self, now_ns: u64) -> Result<(), VioError> {
-        if !self.options.zupt || !self.standstill.is_standing(now_ns) {
+        if !self.options.zupt || !self.standstill.is_standing() {
             return Ok(());
         }
         if self.last_zupt_ns.is_some_and(|last| now_ns < last + ZUPT_PERIOD_NS) {

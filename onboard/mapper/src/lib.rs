@@ -1,0 +1,31 @@
+//! Dense mapping (thesis ch. 5): submaps, their exchange encoding, the composed global map and
+//! the exports users open elsewhere.
+//!
+//! - [`cloud`]: the 5 cm voxel point cloud (centroid, intensity, obstacle bit per voxel).
+//! - [`occupancy`]: the 10 cm probabilistic occupancy octree (OctoMap log-odds semantics).
+//! - [`integrate`]: one depth image (with its obstacle labels) into a submap's cloud and octree.
+//! - [`submap`]: a submap and the policy that starts the next one (filter frame switch).
+//! - [`exchange`]: compact, lossless encoding of a finished submap for the radio.
+//! - [`global`]: composition of all submaps at their graph poses, cached.
+//! - [`export`]: PLY point cloud, OctoMap `.bt`, top-down height/traversability PNG.
+//!
+//! # Frames
+//!
+//! A submap's data is in the submap frame: the filter's local frame at the submap's start,
+//! gravity-aligned (z up), origin at the body position then. `t_submap_cam` maps left-camera
+//! coordinates into it. The global map is in the robot's own global (graph) frame; a submap
+//! enters it through `t_global_submap`.
+//!
+//! This crate does no file or network I/O: encoders write into `Vec<u8>`/`impl Write`.
+
+pub mod cloud;
+pub mod exchange;
+pub mod export;
+pub mod global;
+pub mod integrate;
+pub mod occupancy;
+pub mod submap;
+
+pub use cloud::{MapPoint, VoxelCloud};
+pub use occupancy::{OccupancyMap, OccupancyParams, VoxelKey};
+pub use submap::Submap;

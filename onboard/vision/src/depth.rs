@@ -1,0 +1,59 @@
+//! Depth images: per-pixel depth along the left rectified camera's optical axis.
+
+use fpga_model::DisparityImage;
+
+/// Intrinsics of the rectified left camera and the stereo baseline.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoGeometry {
+    pub fx_px: f64,
+    pub fy_px: f64,
+    pub cx_px: f64,
+    pub cy_px: f64,
+    pub baseline_m: f64,
+}
+
+impl StereoGeometry {
+    /// Back-projects pixel `(u, v)` at depth `z` into the left camera frame (x right, y down,
+    /// z forward).
+    pub fn point_at(&self, u: f64, v: f64, z_m: f64) -> [f64; 3] {
+        [(u - self.cx_px) * z_m / self.fx_px, (v - self.cy_px) * z_m / self.fy_px, z_m]
+    }
+}
+
+/// Depth per pixel, row-major. Conventions (thesis trap 11): `NaN` = invalid (no match),
+/// `f32::INFINITY` = zero disparity (a point at infinity: valid for negative-edge detection, no
+/// 3D point).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct DepthImage {
+    pub width: usize,
+    pub height: usize,
+    pub depth_m: Vec<f32>,
+}
+
+impl DepthImage {
+    pub fn new(width: usize, height: usize) -> DepthImage {
+        DepthImage { width, height, depth_m: vec![f32::NAN; width * height] }
+    }
+
+    /// Fills from a disparity map: `z = f·b / d`; zero disparity → infinity, invalid → NaN.
+    /// Reuses the buffer (no allocation once sized).
+    pub fn fill_from_disparity(&mut self, disparity: &DisparityImage, geometry: &StereoGeometry) {
+        self.width = disparity.width;
+        self.height = disparity.height;
+        self.depth_m.resize(disparity.width * disparity.height, f32::NAN);
+        let fb = (geometry.fx_px * geometry.baseline_m) as f32;
+        for y in 0..disparity.height {
+            for x in 0..disparity.width {
+                self.depth_m[y * disparity.width + x] = match disparity.get_px(x, y) {
+                    None => f32::NAN,
+                    Some(d) if d <= 0.0 => f32::INFINITY,
+                    Some(d) => fb / d,
+                };
+            }
+        }
+    }
+
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.depth_m[y * self.width + x]
+    }
+}
