@@ -5,8 +5,15 @@
 //! leaf level is a hash of voxel keys (O(1) updates for ray casting); the octree structure is
 //! materialized where it matters: pruning of stable (clamped) children, the exchange encoding and
 //! the OctoMap `.bt` export.
+//!
+//! One depth image is inserted as a scan ([`ScanBuffer`]): each ray is traversed with a 3D DDA
+//! (Amanatides & Woo 1987) and its voxels are collected in sets first, so that a voxel gets at
+//! most one update per scan and an occupied endpoint wins over free space crossing it (trap 16;
+//! without it, grazing rays punch holes into the surface they just observed).
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
+
+use crate::cloud::VoxelBuildHasher;
 
 /// Integer voxel coordinates: voxel `k` spans `[k·r, (k+1)·r)` on each axis, in the map's frame.
 pub type VoxelKey = [i32; 3];
@@ -53,12 +60,12 @@ pub enum Occupancy {
 pub struct OccupancyMap {
     pub resolution_m: f64,
     pub params: OccupancyParams,
-    cells: HashMap<VoxelKey, f32>,
+    cells: HashMap<VoxelKey, f32, VoxelBuildHasher>,
 }
 
 impl OccupancyMap {
     pub fn new(resolution_m: f64, params: OccupancyParams) -> OccupancyMap {
-        OccupancyMap { resolution_m, params, cells: HashMap::new() }
+        OccupancyMap { resolution_m, params, cells: HashMap::default() }
     }
 
     /// Voxel containing the point `(x, y, z)` (metres, map frame).
@@ -114,4 +121,218 @@ impl OccupancyMap {
     pub fn occupied_count(&self) -> usize {
         self.cells.values().filter(|&&l| l > self.params.occupied_log_odds).count()
     }
+
+    /// Whether `log_odds` sits at a clamping bound: such a leaf stays put under further updates
+    /// of the same sign, which is what makes pruning it lossless in OctoMap's sense.
+    pub fn stable_value(&self, log_odds: f32) -> bool {
+        log_odds == self.params.min_log_odds || log_odds == self.params.max_log_odds
+    }
+
+    /// The common stable value of all `8^level` leaves under the node `key` at `level` (level 0 is
+    /// a leaf, level 1 the parent of 8 leaves: leaf `k` lies under node `k >> level` on each axis),
+    /// or `None` if any leaf is unknown, not stable or different. Such a node can be pruned.
+    pub fn stable_group_value(&self, level: u32, key: &VoxelKey) -> Option<f32> {
+        if level > 20 {
+            return None;
+        }
+        let side = 1i64 << level;
+        let base = [i64::from(key[0]) << level, i64::from(key[1]) << level, i64::from(key[2]) << level];
+        let mut value = None;
+        for dx in 0..side {
+            for dy in 0..side {
+                for dz in 0..side {
+                    let leaf = [
+                        i32::try_from(base[0] + dx).ok()?,
+                        i32::try_from(base[1] + dy).ok()?,
+                        i32::try_from(base[2] + dz).ok()?,
+                    ];
+                    let l = *self.cells.get(&leaf)?;
+                    if !self.stable_value(l) || value.is_some_and(|v| v != l) {
+                        return None;
+                    }
+                    value = Some(l);
+                }
+            }
+        }
+        value
+    }
+
+    /// The level-1 nodes (parents of 8 leaves) whose children are all known, stable and equal,
+    /// with that value, sorted by key. Higher levels follow from [`OccupancyMap::stable_group_value`].
+    pub fn prunable_parents(&self) -> Vec<(VoxelKey, f32)> {
+        let mut parents: Vec<VoxelKey> = self
+            .cells
+            .iter()
+            .filter(|(_, l)| self.stable_value(**l))
+            .map(|(k, _)| [k[0] >> 1, k[1] >> 1, k[2] >> 1])
+            .collect();
+        parents.sort_unstable();
+        parents.dedup();
+        parents.into_iter().filter_map(|p| self.stable_group_value(1, &p).map(|l| (p, l))).collect()
+    }
+
+    /// Applies one scan: a miss to every free voxel that is not also a hit, a hit to every hit
+    /// voxel, each once (eqs. 5.7–5.9). Returns (free updates, occupied updates).
+    pub fn insert_scan(&mut self, scan: &ScanBuffer) -> (usize, usize) {
+        let (miss, hit) = (self.params.miss_log_odds, self.params.hit_log_odds);
+        let mut free = 0;
+        for key in &scan.free {
+            if !scan.occupied.contains(key) {
+                self.add_log_odds(*key, miss);
+                free += 1;
+            }
+        }
+        for key in &scan.occupied {
+            self.add_log_odds(*key, hit);
+        }
+        (free, scan.occupied.len())
+    }
+}
+
+/// The voxels one scan touches, before they are applied: sets, so each voxel is updated once.
+/// Reused across scans (clearing keeps the capacity).
+#[derive(Debug, Clone, Default)]
+pub struct ScanBuffer {
+    resolution_m: f64,
+    free: HashSet<VoxelKey, VoxelBuildHasher>,
+    occupied: HashSet<VoxelKey, VoxelBuildHasher>,
+}
+
+impl ScanBuffer {
+    pub fn new(resolution_m: f64) -> ScanBuffer {
+        ScanBuffer { resolution_m, free: HashSet::default(), occupied: HashSet::default() }
+    }
+
+    pub fn resolution_m(&self) -> f64 {
+        self.resolution_m
+    }
+
+    /// Starts a new scan (for a map of `resolution_m`), keeping the memory.
+    pub fn clear(&mut self, resolution_m: f64) {
+        self.resolution_m = resolution_m;
+        self.free.clear();
+        self.occupied.clear();
+    }
+
+    fn key_of(&self, p: &[f64; 3]) -> VoxelKey {
+        let r = self.resolution_m;
+        [(p[0] / r).floor() as i32, (p[1] / r).floor() as i32, (p[2] / r).floor() as i32]
+    }
+
+    /// Marks the voxel containing `p` occupied; returns whether it is new in this scan.
+    pub fn mark_hit(&mut self, p_m: &[f64; 3]) -> bool {
+        let key = self.key_of(p_m);
+        self.occupied.insert(key)
+    }
+
+    /// Marks a voxel occupied by key; returns whether it is new in this scan.
+    pub fn mark_hit_key(&mut self, key: VoxelKey) -> bool {
+        self.occupied.insert(key)
+    }
+
+    /// The occupied voxels collected so far (unspecified order).
+    pub fn hits(&self) -> impl Iterator<Item = &VoxelKey> + '_ {
+        self.occupied.iter()
+    }
+
+    pub fn hit_count(&self) -> usize {
+        self.occupied.len()
+    }
+
+    pub fn free_count(&self) -> usize {
+        self.free.len()
+    }
+
+    pub fn is_free(&self, key: &VoxelKey) -> bool {
+        self.free.contains(key)
+    }
+
+    pub fn is_hit(&self, key: &VoxelKey) -> bool {
+        self.occupied.contains(key)
+    }
+
+    /// Casts a ray from `origin_m` to the centre of every hit voxel collected so far, marking the
+    /// voxels before the endpoint free. Returns the number of voxels visited.
+    pub fn cast_free_to_hits(&mut self, origin_m: &[f64; 3], centre: impl Fn(&VoxelKey) -> [f64; 3]) -> usize {
+        let mut visited = 0;
+        let (free, occupied) = (&mut self.free, &self.occupied);
+        for end in occupied {
+            traverse(self.resolution_m, origin_m, &centre(end), |key, is_end| {
+                if !is_end {
+                    free.insert(key);
+                    visited += 1;
+                }
+            });
+        }
+        visited
+    }
+
+    /// Marks free every voxel the segment `origin → end` passes through, excluding the voxel of
+    /// `end` when `include_end` is false (a hit ray: the endpoint gets the hit instead) and
+    /// including it when true (a ray cut at the range limit: free all the way). Returns the
+    /// number of voxels visited.
+    pub fn cast_free(&mut self, origin_m: &[f64; 3], end_m: &[f64; 3], include_end: bool) -> usize {
+        let mut visited = 0;
+        let free = &mut self.free;
+        traverse(self.resolution_m, origin_m, end_m, |key, is_end| {
+            if !is_end || include_end {
+                free.insert(key);
+                visited += 1;
+            }
+        });
+        visited
+    }
+}
+
+/// 3D DDA (Amanatides & Woo): calls `visit(key, is_end)` for every voxel the segment
+/// `a → b` passes through, in order from `a`'s voxel to `b`'s. Non-finite input visits nothing.
+pub fn traverse(resolution_m: f64, a: &[f64; 3], b: &[f64; 3], mut visit: impl FnMut(VoxelKey, bool)) {
+    if !(a.iter().chain(b.iter()).all(|v| v.is_finite()) && resolution_m > 0.0) {
+        return;
+    }
+    let r = resolution_m;
+    let key = |p: f64| (p / r).floor() as i32;
+    let mut current = [key(a[0]), key(a[1]), key(a[2])];
+    let end = [key(b[0]), key(b[1]), key(b[2])];
+    let mut step = [0i32; 3];
+    let mut t_max = [f64::INFINITY; 3];
+    let mut t_delta = [f64::INFINITY; 3];
+    for i in 0..3 {
+        let d = b[i] - a[i];
+        if d > 0.0 {
+            step[i] = 1;
+            t_max[i] = ((f64::from(current[i]) + 1.0) * r - a[i]) / d;
+            t_delta[i] = r / d;
+        } else if d < 0.0 {
+            step[i] = -1;
+            t_max[i] = (f64::from(current[i]) * r - a[i]) / d;
+            t_delta[i] = -r / d;
+        }
+    }
+    // Each step moves one voxel along one axis towards `end`: the Manhattan distance bounds the
+    // walk even when rounding makes the t's disagree with the keys near a corner.
+    let mut remaining: i64 = (0..3).map(|i| (i64::from(end[i]) - i64::from(current[i])).abs()).sum();
+    while remaining > 0 {
+        visit(current, false);
+        let axis = if t_max[0] < t_max[1] {
+            if t_max[0] < t_max[2] { 0 } else { 2 }
+        } else if t_max[1] < t_max[2] {
+            1
+        } else {
+            2
+        };
+        // Never step past the end voxel on an axis (rounding at faces).
+        let axis = if current[axis] == end[axis] {
+            match (0..3).find(|&i| current[i] != end[i]) {
+                Some(i) => i,
+                None => break,
+            }
+        } else {
+            axis
+        };
+        current[axis] += step[axis];
+        t_max[axis] += t_delta[axis];
+        remaining -= 1;
+    }
+    visit(current, true);
 }

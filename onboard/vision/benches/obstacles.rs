@@ -1,0 +1,93 @@
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+//! Time of `ObstacleClassifier::classify` per 1024×508 depth image on one thread, on SGM depth
+//! of frames rendered by the simulator (Moon preset, standing with a pan sweep, then driving),
+//! against the 100 ms frame period of 10 Hz stereo. SGM runs beforehand and is not timed (the
+//! FPGA computes it on the rover). Run: `cargo bench -p vision --bench obstacles`.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use fpga_model::fast::Matcher;
+use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use hal::sensor::{SensorEvent, SensorSource, StereoFrame};
+use sim::driver::SimSensorSource;
+use sim::scenario::{ScenarioOptions, preset};
+use sim::world::World;
+use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
+use vision::{DepthImage, StereoGeometry};
+
+const FRAMES: usize = 30;
+const FRAME_PERIOD_MS: f64 = 100.0;
+
+/// This thread's CPU time in ns (Linux schedstat), immune to other load; `None` elsewhere.
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+}
+
+fn main() {
+    let options =
+        ScenarioOptions { robots: 1, duration_s: 30.0, seed: 3, downscale: 1, world_size_m: Some(60.0), flyer: false };
+    let mut scenario = preset("moon", &options).unwrap();
+    scenario.camera_rate_hz = 2.0;
+    let world: Arc<World> = World::build(&scenario).unwrap();
+    let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
+    let calibration = source.stereo_calibration().unwrap();
+    let k = calibration.left.intrinsics;
+    let geometry = StereoGeometry {
+        fx_px: k.fx_px,
+        fy_px: k.fy_px,
+        cx_px: k.cx_px,
+        cy_px: k.cy_px,
+        baseline_m: calibration.baseline_m,
+    };
+    let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
+    let mut matcher = Matcher::new(SgmConfig::default(), w, h, 2).unwrap();
+    let mut frame = StereoFrame::default();
+    let mut inputs = Vec::new();
+    while inputs.len() < FRAMES {
+        match source.next_event(&mut frame).unwrap() {
+            Some(SensorEvent::Stereo) => {
+                let mut disparity = DisparityImage { width: w, height: h, data: vec![0; w * h] };
+                let left = GrayImage::new(w, h, frame.left.clone()).unwrap();
+                let right = GrayImage::new(w, h, frame.right.clone()).unwrap();
+                matcher.compute_into(&left, &right, &mut disparity).unwrap();
+                let mut depth = DepthImage::new(w, h);
+                depth.fill_from_disparity(&disparity, &geometry);
+                inputs.push((depth, world.t_world_cam(0, frame.stamp_ns).unwrap()));
+            }
+            Some(_) => {}
+            None => break,
+        }
+    }
+    let mut classifier = ObstacleClassifier::new(ObstacleConfig::default()).unwrap();
+    let mut labels = PixelLabels::default();
+    let (mut wall_ms, mut cpu_ms) = (Vec::new(), Vec::new());
+    // Two passes; the first pass's first call sizes the buffers, the second pass allocates nothing.
+    for pass in 0..2 {
+        for (depth, t_world_cam) in &inputs {
+            let (start, cpu_start) = (Instant::now(), thread_cpu_ns());
+            let stats = classifier.classify(depth, &geometry, t_world_cam, &mut labels);
+            std::hint::black_box(stats);
+            if pass == 1 {
+                wall_ms.push(start.elapsed().as_secs_f64() * 1e3);
+                if let (Some(a), Some(b)) = (cpu_start, thread_cpu_ns()) {
+                    cpu_ms.push(b.saturating_sub(a) as f64 * 1e-6);
+                }
+            }
+        }
+    }
+    println!("obstacle classification bench: {} depth images {w}x{h}, one thread", inputs.len());
+    for (clock, samples) in [("wall", &mut wall_ms), ("thread CPU", &mut cpu_ms)] {
+        if samples.is_empty() {
+            continue;
+        }
+        samples.sort_by(f64::total_cmp);
+        let median = samples[samples.len() / 2];
+        let p95 = samples[((samples.len() - 1) as f64 * 0.95).round() as usize];
+        println!(
+            "classify, {clock}: median {median:.2} ms, p95 {p95:.2} ms, max {:.2} ms; median / {FRAME_PERIOD_MS} ms frame period = {:.3}",
+            samples[samples.len() - 1],
+            median / FRAME_PERIOD_MS
+        );
+    }
+}

@@ -1,0 +1,96 @@
+//! Parameters of the obstacle classification, with the choices the thesis leaves open.
+
+use super::stereo_error::StereoErrorModel;
+
+/// Why a configuration was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ObstacleConfigError {
+    #[error("{field} must be finite and positive (got {value})")]
+    NotPositive { field: &'static str, value: f64 },
+    #[error("the step window must be 3 to 6 cells wide (got {0})")]
+    Window(usize),
+    #[error("the maximum slope must lie in (0°, 90°) (got {0} rad)")]
+    Slope(f64),
+}
+
+/// Obstacle classification parameters for an LRU-like 40 kg rover (thesis §5.1.1).
+///
+/// The thesis gives neither the maximum step height nor the maximum slope (spec trap 26). Our
+/// choices, for four individually driven wheels of about 0.3 m diameter and no rocker-bogie:
+/// - `max_step_m` = 0.15 m, half a wheel diameter: a driven wheel climbs a step up to about
+///   its radius before the contact point is above the axle and the wheel only pushes against the
+///   step; the chassis clearance (≈ 0.2 m under the sim's LRU-like body) is larger, so the wheel
+///   is the limit. Lower values make every crater rim an obstacle at our stereo noise.
+/// - `max_slope_rad` = 25°: wheeled rovers on loose regolith slip heavily beyond 20–25°, and the
+///   simulator's planner uses the same limit, so the negative-edge test and the ground truth
+///   agree on what is a cliff.
+/// - `window_cells` = 5 (0.25 m): odd, so the window is centred on its cell, and about the size
+///   of a wheel's contact patch plus the step it climbs.
+/// - `max_depth_error_m` = 0.15 m: the thesis's bound (Fig. 5.2), 4.5 m for the narrow camera.
+/// - `min_points_per_cell` = 3: a cell's mean from one or two pixels is an SGM outlier as often
+///   as not; near cells hold hundreds of points, cells at the range cutoff still dozens.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObstacleConfig {
+    /// `Δp` of the stereo error model (eqs. 5.2–5.4).
+    pub pixel_error_px: f64,
+    /// `h_max`: the largest step the rover drives over.
+    pub max_step_m: f64,
+    /// Negative edges with a minimal slope `s_min` steeper than this are obstacles.
+    pub max_slope_rad: f64,
+    /// Depth jump between vertically adjacent pixels that starts a negative-edge test (0.2 m).
+    pub edge_jump_m: f64,
+    /// Points with a larger depth error `Δp_z` are not classified (flagged `TOO_FAR`).
+    pub max_depth_error_m: f64,
+    /// Height map cell edge (0.05 m).
+    pub cell_size_m: f64,
+    /// Edge of the square step window in cells (3–6).
+    pub window_cells: usize,
+    /// Half the edge of the height map around the camera; points farther away are dropped. Must
+    /// exceed the range cutoff's horizontal reach.
+    pub map_half_extent_m: f64,
+    pub min_points_per_cell: u32,
+}
+
+impl Default for ObstacleConfig {
+    fn default() -> Self {
+        ObstacleConfig {
+            pixel_error_px: 0.5,
+            max_step_m: 0.15,
+            max_slope_rad: 25f64.to_radians(),
+            edge_jump_m: 0.2,
+            max_depth_error_m: 0.15,
+            cell_size_m: 0.05,
+            window_cells: 5,
+            map_half_extent_m: 6.0,
+            min_points_per_cell: 3,
+        }
+    }
+}
+
+impl ObstacleConfig {
+    pub fn validate(&self) -> Result<(), ObstacleConfigError> {
+        for (field, value) in [
+            ("pixel_error_px", self.pixel_error_px),
+            ("max_step_m", self.max_step_m),
+            ("edge_jump_m", self.edge_jump_m),
+            ("max_depth_error_m", self.max_depth_error_m),
+            ("cell_size_m", self.cell_size_m),
+            ("map_half_extent_m", self.map_half_extent_m),
+        ] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ObstacleConfigError::NotPositive { field, value });
+            }
+        }
+        if !(3..=6).contains(&self.window_cells) {
+            return Err(ObstacleConfigError::Window(self.window_cells));
+        }
+        if !(self.max_slope_rad > 0.0 && self.max_slope_rad < std::f64::consts::FRAC_PI_2) {
+            return Err(ObstacleConfigError::Slope(self.max_slope_rad));
+        }
+        Ok(())
+    }
+
+    pub fn error_model(&self, f_px: f64, baseline_m: f64) -> StereoErrorModel {
+        StereoErrorModel { pixel_error_px: self.pixel_error_px, f_px, baseline_m }
+    }
+}

@@ -1,0 +1,106 @@
+//! Negative edges (cliffs) straight in the depth image (thesis eq. 5.1, spec trap 12).
+//!
+//! Each pixel is compared with its upper neighbour only. A depth jump above the threshold makes
+//! the pair a candidate; which of the two points is the cliff's top is decided by their heights
+//! in the gravity-aligned frame, not by the image row (with a downward-looking camera the upper
+//! pixel usually sees the farther, lower ground). The minimal slope between top and bottom,
+//! `s_min = (top_z − bottom_z) / horizontal distance`, is what the rover would have to descend.
+//!
+//! A zero-disparity pixel (infinite depth) next to a finite one is a jump too: the ray through
+//! it passes the finite point and never meets the ground again, so the ground beyond the finite
+//! point (the top) stays below that ray and falls at least as steeply as the ray itself. `s_min`
+//! is then the ray's downward slope; a ray above the horizon (sky) gives `s_min ≤ 0`, no edge.
+//! Invalid pixels (NaN, no match) never form a pair.
+
+/// What a pixel contributes to the test, in the gravity-aligned local frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub(crate) enum EdgePixel {
+    #[default]
+    Invalid,
+    /// Direction of the pixel's ray (any length).
+    Infinite {
+        ray_local: [f64; 3],
+    },
+    Finite {
+        depth_m: f32,
+        p_local: [f64; 3],
+    },
+}
+
+/// Which pixel of a candidate pair is the cliff's top.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Top {
+    Upper,
+    Lower,
+}
+
+/// `s_min` of eq. 5.1 for a top `p` and bottom `q`; infinite when they are vertically aligned.
+pub fn min_slope(p_top: &[f64; 3], q_bottom: &[f64; 3]) -> f64 {
+    let horizontal = (q_bottom[0] - p_top[0]).hypot(q_bottom[1] - p_top[1]);
+    let drop = p_top[2] - q_bottom[2];
+    if horizontal > 0.0 { drop / horizontal } else { f64::INFINITY * drop.signum() }
+}
+
+/// Downward slope of a ray (positive below the horizon).
+fn ray_slope(ray: &[f64; 3]) -> f64 {
+    let horizontal = ray[0].hypot(ray[1]);
+    if horizontal > 0.0 { -ray[2] / horizontal } else { f64::INFINITY * (-ray[2]).signum() }
+}
+
+/// The top pixel and `s_min` of an upper/lower pixel pair, when their depths jump by more than
+/// `jump_m`.
+pub(crate) fn test_pair(upper: &EdgePixel, lower: &EdgePixel, jump_m: f64) -> Option<(Top, f64)> {
+    match (upper, lower) {
+        (EdgePixel::Finite { depth_m: a, p_local: pa }, EdgePixel::Finite { depth_m: b, p_local: pb }) => {
+            if f64::from((a - b).abs()) <= jump_m {
+                return None;
+            }
+            Some(if pa[2] >= pb[2] { (Top::Upper, min_slope(pa, pb)) } else { (Top::Lower, min_slope(pb, pa)) })
+        }
+        (EdgePixel::Infinite { ray_local }, EdgePixel::Finite { .. }) => Some((Top::Lower, ray_slope(ray_local))),
+        (EdgePixel::Finite { .. }, EdgePixel::Infinite { ray_local }) => Some((Top::Upper, ray_slope(ray_local))),
+        _ => None,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    fn finite(depth_m: f32, p_local: [f64; 3]) -> EdgePixel {
+        EdgePixel::Finite { depth_m, p_local }
+    }
+
+    #[test]
+    fn top_is_the_higher_point_whatever_the_row() {
+        // Upper pixel sees far ground 1 m below the near edge: the lower pixel is the top.
+        let (top, s) = test_pair(&finite(4.0, [4.0, 0.0, -1.0]), &finite(3.0, [3.0, 0.0, 0.0]), 0.2).unwrap();
+        assert_eq!(top, Top::Lower);
+        assert!((s - 1.0).abs() < 1e-12);
+        // A rock face below, ground behind it lower: the rock top (lower pixel) again.
+        let (top, _) = test_pair(&finite(3.5, [3.5, 0.0, 0.0]), &finite(3.2, [3.2, 0.0, 0.4]), 0.2).unwrap();
+        assert_eq!(top, Top::Lower);
+        // An overhang seen from below: the upper pixel's point is higher.
+        let (top, _) = test_pair(&finite(2.0, [2.0, 0.0, 0.5]), &finite(3.0, [3.0, 0.0, 0.0]), 0.2).unwrap();
+        assert_eq!(top, Top::Upper);
+    }
+
+    #[test]
+    fn small_jumps_and_invalid_pixels_are_no_edge() {
+        assert_eq!(test_pair(&finite(3.1, [3.1, 0.0, 0.0]), &finite(3.0, [3.0, 0.0, 0.0]), 0.2), None);
+        assert_eq!(test_pair(&EdgePixel::Invalid, &finite(3.0, [3.0, 0.0, 0.0]), 0.2), None);
+        assert_eq!(test_pair(&finite(3.0, [3.0, 0.0, 0.0]), &EdgePixel::Invalid, 0.2), None);
+    }
+
+    #[test]
+    fn infinite_depth_gives_the_ray_slope() {
+        let below = EdgePixel::Infinite { ray_local: [2.0, 0.0, -1.0] };
+        let (top, s) = test_pair(&below, &finite(3.0, [3.0, 0.0, 0.0]), 0.2).unwrap();
+        assert_eq!(top, Top::Lower);
+        assert!((s - 0.5).abs() < 1e-12);
+        let sky = EdgePixel::Infinite { ray_local: [1.0, 0.0, 0.1] };
+        let (_, s) = test_pair(&sky, &finite(3.0, [3.0, 0.0, 0.0]), 0.2).unwrap();
+        assert!(s < 0.0);
+    }
+}
