@@ -40,14 +40,7 @@ fn main() {
     let world: Arc<World> = World::build(&scenario).expect("world");
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).expect("source");
     let calibration = source.stereo_calibration().expect("cameras");
-    let k = calibration.left.intrinsics;
-    let geometry = StereoGeometry {
-        fx_px: k.fx_px,
-        fy_px: k.fy_px,
-        cx_px: k.cx_px,
-        cy_px: k.cy_px,
-        baseline_m: calibration.baseline_m,
-    };
+    let geometry = StereoGeometry::from_calibration(&calibration);
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
     let mut integrator = DepthIntegrator::new(IntegratorConfig::default(), geometry);
 

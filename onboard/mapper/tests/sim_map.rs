@@ -34,7 +34,8 @@ struct Measured {
     stats: eval::map::ErrorStats,
 }
 
-/// A Moon drive of `duration_s` (short stands so it drives most of it), mapped along the truth.
+/// The first `duration_s` of a Moon drive planned for four times as long with 1 s stands (a
+/// route fitted to a short duration keeps only its first, short leg), mapped along the truth.
 fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
     let options = ScenarioOptions {
         robots: 1,
@@ -45,7 +46,6 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
         flyer: false,
     };
     let mut scenario = scenario::preset("moon", &options).unwrap();
-    scenario.duration_s = duration_s;
     for robot in &mut scenario.robots {
         robot.drive.pause_s = 1.0;
     }
@@ -75,6 +75,9 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
             continue;
         }
         let stamp_ns = frame.stamp_ns;
+        if stamp_ns as f64 > duration_s * 1e9 {
+            break;
+        }
         let t_world_body = source.ground_truth(stamp_ns).unwrap().state.t_world_body;
         let t_world_cam = world.t_world_cam(0, stamp_ns).unwrap();
         let xy = Point2::from(t_world_body.translation.vector.xy());
@@ -147,8 +150,10 @@ fn composed_map_along_true_poses_lies_on_the_terrain() {
         "{} frames, {} submaps, path {:.1} m: {} points, median {:.4} m, p95 {:.4} m, mean {:+.4} m",
         m.frames, m.submaps, m.path_m, s.count, s.median_abs_m, s.p95_abs_m, s.mean_m
     );
-    assert!(m.frames >= 115 && m.path_m > 3.0, "{} frames, {} m", m.frames, m.path_m);
-    assert!(s.count > 3000, "{} points scored", s.count);
-    assert!(s.median_abs_m < 0.05, "median {} m", s.median_abs_m);
-    assert!(s.p95_abs_m < 0.15, "p95 {} m", s.p95_abs_m);
+    // Measured (seed 1, 12 s, 1.9 m driven): 121 frames, 5304 points, median 0.0383 m, p95 0.1174 m.
+    assert!(m.frames >= 115 && m.path_m > 1.5, "{} frames, {} m", m.frames, m.path_m);
+    assert!(s.count > 4000, "{} points scored", s.count);
+    assert!(s.median_abs_m < 0.04, "median {} m", s.median_abs_m);
+    assert!(s.p95_abs_m < 0.12, "p95 {} m", s.p95_abs_m);
+    assert!(s.mean_m.abs() < 0.02, "bias {} m", s.mean_m);
 }

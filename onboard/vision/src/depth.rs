@@ -1,6 +1,7 @@
 //! Depth images: per-pixel depth along the left rectified camera's optical axis.
 
 use fpga_model::DisparityImage;
+use hal::sensor::StereoCalibration;
 
 /// Intrinsics of the rectified left camera and the stereo baseline.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -13,6 +14,19 @@ pub struct StereoGeometry {
 }
 
 impl StereoGeometry {
+    /// The left camera's intrinsics and the baseline of a calibration; meaningful for a
+    /// rectified pair (the simulator's, or [`crate::Rectifier::rectified_calibration`]).
+    pub fn from_calibration(calibration: &StereoCalibration) -> StereoGeometry {
+        let k = calibration.left.intrinsics;
+        StereoGeometry {
+            fx_px: k.fx_px,
+            fy_px: k.fy_px,
+            cx_px: k.cx_px,
+            cy_px: k.cy_px,
+            baseline_m: calibration.baseline_m,
+        }
+    }
+
     /// Back-projects pixel `(u, v)` at depth `z` into the left camera frame (x right, y down,
     /// z forward).
     pub fn point_at(&self, u: f64, v: f64, z_m: f64) -> [f64; 3] {

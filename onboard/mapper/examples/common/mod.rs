@@ -24,14 +24,7 @@ pub fn out_dir(default: &str) -> std::path::PathBuf {
 }
 
 pub fn geometry_of(calibration: &StereoCalibration) -> StereoGeometry {
-    let k = calibration.left.intrinsics;
-    StereoGeometry {
-        fx_px: k.fx_px,
-        fy_px: k.fy_px,
-        cx_px: k.cx_px,
-        cy_px: k.cy_px,
-        baseline_m: calibration.baseline_m,
-    }
+    StereoGeometry::from_calibration(calibration)
 }
 
 /// SGM (the FPGA model's fast path) from rectified pairs to depth, buffers reused.
