@@ -27,6 +27,10 @@ pub enum ObstacleConfigError {
 /// - `window_cells` = 5 (0.25 m): odd, so the window is centred on its cell, and about the size
 ///   of a wheel's contact patch plus the step it climbs.
 /// - `max_depth_error_m` = 0.15 m: the thesis's bound (Fig. 5.2), 4.5 m for the narrow camera.
+/// - `min_edge_pixels` = 10: a negative edge counts only as an 8-connected line of at least
+///   this many top pixels. A rim 10 cm long spans 24 px at the 4.5 m range cutoff (f = 1083 px);
+///   SGM blunders next to good pixels (on the simulated Moon mostly in black shadows) make
+///   isolated one- to few-pixel "cliffs" whose floating top looks exactly like a rim.
 /// - `min_points_per_cell` = 3: a cell's mean from one or two pixels is an SGM outlier as often
 ///   as not; near cells hold hundreds of points, cells at the range cutoff still dozens.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,6 +53,8 @@ pub struct ObstacleConfig {
     /// exceed the range cutoff's horizontal reach.
     pub map_half_extent_m: f64,
     pub min_points_per_cell: u32,
+    /// Smallest 8-connected group of negative-edge top pixels that is kept.
+    pub min_edge_pixels: usize,
 }
 
 impl Default for ObstacleConfig {
@@ -63,6 +69,7 @@ impl Default for ObstacleConfig {
             window_cells: 5,
             map_half_extent_m: 6.0,
             min_points_per_cell: 3,
+            min_edge_pixels: 10,
         }
     }
 }

@@ -13,6 +13,11 @@
 //! upper rim are obstacle points, the ground at their foot is not. The submap matcher takes its
 //! keypoints from obstacle points, so labelling the foot would spread them onto flat ground.
 //! Negative-edge tops are obstacle pixels too (also flagged [`PixelLabels::NEGATIVE_EDGE`]).
+//!
+//! **Edge support.** A negative-edge top is kept only within an 8-connected group of at least
+//! `min_edge_pixels` tops. On simulated Moon views most single-pair "cliffs" were SGM blunders
+//! beside good pixels (the blunder floats above the ground and looks exactly like a rim); they
+//! made more than half of the false obstacle clusters. A real rim is a line across many columns.
 
 pub mod config;
 pub mod height_map;
@@ -87,6 +92,13 @@ pub struct ObstacleClassifier {
     column_reach_m: Vec<f64>,
     /// Negative-edge tops of this image: (pixel, cell, traversability).
     edge_tops: Vec<(usize, Option<usize>, f32)>,
+    /// Per pixel: 1 + index into `edge_tops` (0 = none); scratch of the support test.
+    edge_index: Vec<u32>,
+    /// Per edge top: kept after the support test; and the flood-fill stack.
+    edge_keep: Vec<bool>,
+    edge_visited: Vec<bool>,
+    edge_stack: Vec<usize>,
+    edge_group: Vec<usize>,
 }
 
 const NO_CELL: u32 = u32::MAX;
@@ -103,6 +115,11 @@ impl ObstacleClassifier {
             current_row: Vec::new(),
             column_reach_m: Vec::new(),
             edge_tops: Vec::new(),
+            edge_index: Vec::new(),
+            edge_keep: Vec::new(),
+            edge_visited: Vec::new(),
+            edge_stack: Vec::new(),
+            edge_group: Vec::new(),
         })
     }
 
@@ -219,13 +236,14 @@ impl ObstacleClassifier {
         stats.step_cells =
             self.map.classify_steps(cfg.min_points_per_cell, cfg.window_cells, cfg.max_step_m, &model, &t_cam_local);
         stats.known_cells = self.map.cells().iter().filter(|c| c.is_known()).count();
-        for &(pixel, cell, traversability) in &self.edge_tops {
+        self.support_edges(w, n);
+        for (&(pixel, cell, traversability), _) in self.edge_tops.iter().zip(&self.edge_keep).filter(|(_, k)| **k) {
             labels.flags[pixel] |= PixelLabels::NEGATIVE_EDGE | PixelLabels::OBSTACLE;
             if let Some(cell) = cell {
                 self.map.mark_negative_edge(cell, traversability);
             }
         }
-        stats.negative_edge_pixels = self.edge_tops.len();
+        stats.negative_edge_pixels = self.edge_keep.iter().filter(|&&k| k).count();
         let half_step = (0.5 * cfg.max_step_m) as f32;
         for ((flag, &cell), &z) in labels.flags.iter_mut().zip(&self.pixel_cell).zip(&self.pixel_z_m) {
             if cell == NO_CELL {
@@ -238,6 +256,56 @@ impl ObstacleClassifier {
         }
         stats.obstacle_pixels = labels.flags.iter().filter(|&&f| f & PixelLabels::OBSTACLE != 0).count();
         stats
+    }
+
+    /// Keeps the negative-edge tops that belong to an 8-connected group of at least
+    /// `min_edge_pixels` tops: a cliff's rim is a line across the image, while an SGM blunder
+    /// next to a good pixel (a jump with a floating "top") is one pixel or a short fragment.
+    fn support_edges(&mut self, w: usize, n: usize) {
+        let min = self.config.min_edge_pixels;
+        self.edge_keep.clear();
+        self.edge_keep.resize(self.edge_tops.len(), false);
+        self.edge_index.clear();
+        self.edge_index.resize(n, 0);
+        for (k, &(pixel, _, _)) in self.edge_tops.iter().enumerate() {
+            self.edge_index[pixel] = k as u32 + 1;
+        }
+        let visited = &mut self.edge_visited;
+        visited.clear();
+        visited.resize(self.edge_tops.len(), false);
+        for first in 0..self.edge_tops.len() {
+            if visited[first] {
+                continue;
+            }
+            visited[first] = true;
+            self.edge_group.clear();
+            self.edge_stack.clear();
+            self.edge_stack.push(first);
+            while let Some(k) = self.edge_stack.pop() {
+                self.edge_group.push(k);
+                let pixel = self.edge_tops[k].0;
+                let (x, y) = ((pixel % w) as i64, (pixel / w) as i64);
+                for (dx, dy) in [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+                    let (nx, ny) = (x + dx, y + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i64 {
+                        continue;
+                    }
+                    let j = (ny * w as i64 + nx) as usize;
+                    if let Some(&e) = self.edge_index.get(j)
+                        && e != 0
+                        && !visited[e as usize - 1]
+                    {
+                        visited[e as usize - 1] = true;
+                        self.edge_stack.push(e as usize - 1);
+                    }
+                }
+            }
+            if self.edge_group.len() >= min {
+                for &k in &self.edge_group {
+                    self.edge_keep[k] = true;
+                }
+            }
+        }
     }
 
     /// The local-frame point of pixel `i` of the last image's height map, if it was mapped (for
