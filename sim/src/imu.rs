@@ -23,6 +23,20 @@ pub struct ImuNoise {
     pub accel_bias_init_mps2: f64,
 }
 
+impl ImuNoise {
+    /// The four Kalibr densities, as a dataset's `imu0/sensor.yaml` states them (what a filter is
+    /// tuned with; the turn-on biases are not among them).
+    pub fn densities(&self, rate_hz: f64) -> hal::asl::ImuNoiseDensities {
+        hal::asl::ImuNoiseDensities {
+            gyroscope_noise_density: self.gyro_noise_density_radps_rthz,
+            gyroscope_random_walk: self.gyro_bias_rw_radps2_rthz,
+            accelerometer_noise_density: self.accel_noise_density_mps2_rthz,
+            accelerometer_random_walk: self.accel_bias_rw_mps3_rthz,
+            rate_hz: Some(rate_hz),
+        }
+    }
+}
+
 /// Standard gravity, for converting datasheet µg.
 const G0_MPS2: f64 = 9.806_65;
 

@@ -52,9 +52,7 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
     let world = World::build(&scenario).unwrap();
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
     let c = source.stereo_calibration().unwrap();
-    let k = c.left.intrinsics;
-    let geometry =
-        StereoGeometry { fx_px: k.fx_px, fy_px: k.fy_px, cx_px: k.cx_px, cy_px: k.cy_px, baseline_m: c.baseline_m };
+    let geometry = StereoGeometry::from_calibration(&c);
     let (w, h) = (c.left.width_px as usize, c.left.height_px as usize);
     let mut matcher = Matcher::new(SgmConfig::default(), w, h, 2).unwrap();
     let mut left = GrayImage { width: w, height: h, pixels: vec![0; w * h] };

@@ -257,9 +257,7 @@ fn sim_frames(seed: u64, downscale: u32, from_s: f64, every: u64, count: usize) 
     let world = World::build(&scenario).unwrap();
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
     let c = source.stereo_calibration().unwrap();
-    let k = c.left.intrinsics;
-    let geometry =
-        StereoGeometry { fx_px: k.fx_px, fy_px: k.fy_px, cx_px: k.cx_px, cy_px: k.cy_px, baseline_m: c.baseline_m };
+    let geometry = StereoGeometry::from_calibration(&c);
     let (w, h) = (c.left.width_px as usize, c.left.height_px as usize);
     let mut frames = Vec::new();
     let mut frame = StereoFrame::default();
@@ -425,12 +423,7 @@ fn drive(policy: SubmapPolicy, duration_s: f64) -> DriveResult {
     let world = World::build(&scenario).unwrap();
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
     let noise = world.scenario.imu_noise;
-    let imu = ImuNoise {
-        gyro_noise_density: noise.gyro_noise_density_radps_rthz,
-        gyro_random_walk: noise.gyro_bias_rw_radps2_rthz,
-        accel_noise_density: noise.accel_noise_density_mps2_rthz,
-        accel_random_walk: noise.accel_bias_rw_mps3_rthz,
-    };
+    let imu = ImuNoise::from(noise.densities(world.scenario.imu_rate_hz));
     let mut config = FilterConfig::from_imu_noise(imu, world.scenario.body.gravity_mps2());
     config.imu_rate_hz = world.scenario.imu_rate_hz;
     let truth0 = source.ground_truth(0).unwrap().state;

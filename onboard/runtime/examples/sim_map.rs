@@ -179,14 +179,7 @@ fn main() -> Result<(), BoxError> {
     let mut source = SimSensorSource::new(Arc::clone(&world), 0)?;
     let calibration = source.stereo_calibration().ok_or("the sim robot has no stereo camera")?;
     let mut pipeline = VioPipeline::new(&calibration, sim_run::sim_options(&world, true))?;
-    let k = calibration.left.intrinsics;
-    let geometry = StereoGeometry {
-        fx_px: k.fx_px,
-        fy_px: k.fy_px,
-        cx_px: k.cx_px,
-        cy_px: k.cy_px,
-        baseline_m: calibration.baseline_m,
-    };
+    let geometry = StereoGeometry::from_calibration(&calibration);
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut matcher = Matcher::new(SgmConfig::default(), w, h, threads)?;

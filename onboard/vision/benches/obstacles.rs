@@ -32,14 +32,7 @@ fn main() {
     let world: Arc<World> = World::build(&scenario).unwrap();
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
     let calibration = source.stereo_calibration().unwrap();
-    let k = calibration.left.intrinsics;
-    let geometry = StereoGeometry {
-        fx_px: k.fx_px,
-        fy_px: k.fy_px,
-        cx_px: k.cx_px,
-        cy_px: k.cy_px,
-        baseline_m: calibration.baseline_m,
-    };
+    let geometry = StereoGeometry::from_calibration(&calibration);
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
     let mut matcher = Matcher::new(SgmConfig::default(), w, h, 2).unwrap();
     let mut frame = StereoFrame::default();

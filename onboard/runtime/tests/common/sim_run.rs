@@ -32,12 +32,7 @@ pub fn moon_world(seed: u64, duration_s: f64, downscale: u32, pause_s: Option<f6
 /// Filter tuning for the simulated IMU (its own noise model) and the site's gravity.
 pub fn sim_options(world: &World, use_wheel: bool) -> VioOptions {
     let noise = world.scenario.imu_noise;
-    let imu = ImuNoise {
-        gyro_noise_density: noise.gyro_noise_density_radps_rthz,
-        gyro_random_walk: noise.gyro_bias_rw_radps2_rthz,
-        accel_noise_density: noise.accel_noise_density_mps2_rthz,
-        accel_random_walk: noise.accel_bias_rw_mps3_rthz,
-    };
+    let imu = ImuNoise::from(noise.densities(world.scenario.imu_rate_hz));
     let mut filter = FilterConfig::from_imu_noise(imu, world.scenario.body.gravity_mps2());
     filter.imu_rate_hz = world.scenario.imu_rate_hz;
     // The simulator's turn-on biases, as the datasheet would state them.
