@@ -34,5 +34,6 @@ pub mod robot;
 pub mod scenario;
 pub mod terrain;
 pub mod trajectory;
+pub mod truth_constraints;
 pub mod wheel;
 pub mod world;

@@ -18,6 +18,7 @@ pub mod streams {
     pub const IMAGE_NOISE: u64 = 12;
     pub const PATHS: u64 = 13;
     pub const RADIO: u64 = 14;
+    pub const TRUTH_CONSTRAINTS: u64 = 15;
 }
 
 /// Mixes a seed with a path of integers into a new seed (SplitMix64 finaliser per element).

@@ -8,6 +8,7 @@
 //! - [`exchange`]: compact, lossless encoding of a finished submap for the radio.
 //! - [`global`]: composition of all submaps at their graph poses, cached.
 //! - [`export`]: PLY point cloud, OctoMap `.bt`, top-down height/traversability PNG.
+//! - [`slam`]: the multi-robot SLAM front-end: what enters each robot's pose graph of the team.
 //!
 //! # Frames
 //!
@@ -24,6 +25,7 @@ pub mod export;
 pub mod global;
 pub mod integrate;
 pub mod occupancy;
+pub mod slam;
 pub mod submap;
 
 pub use cloud::{MapPoint, VoxelCloud};
