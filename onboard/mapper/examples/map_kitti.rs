@@ -10,7 +10,7 @@ use common::{BoxError, HeightConsistency, StereoDepth};
 use hal::kitti::KittiDataset;
 use hal::sensor::StereoFrame;
 use mapper::integrate::IntegratorConfig;
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/stereo_sequences/kitti_straight");
 /// KITTI's camera height above the road.
@@ -82,11 +82,10 @@ fn main() -> Result<(), BoxError> {
     let points = &composition.cloud.points;
     let ply = common::write_ply(points, &out.join("kitti_straight.ply"))?;
     let top = common::render_top_down(points, 900).write_png(&out.join("kitti_top.png"))?;
-    let start = t_world_cam[0].translation.vector;
-    let eye = Point3::from(start + Vector3::new(-6.0, 4.0, 7.0));
-    let target = Point3::from(t_world_cam[frames / 2].translation.vector - Vector3::z() * CAMERA_HEIGHT_M);
-    let persp =
-        common::render_perspective(points, eye, target, 60.0, (960, 540)).write_png(&out.join("kitti_persp.png"))?;
+    // From behind the drive and well to its left, 35° above the horizon, fitted to the cloud.
+    let size = (960, 540);
+    let (eye, target) = common::frame_view(points, 55.0, 35.0, 60.0, size);
+    let persp = common::render_perspective(points, eye, target, 60.0, size).write_png(&out.join("kitti_persp.png"))?;
     let (cells, median, p95) = consistency.spread();
     println!("KITTI straight: {frames} frames, {} submaps (7 m), depth cutoff {cutoff_m:.1} m", run.global.len() + 1);
     println!(

@@ -42,10 +42,22 @@ use crate::submap::Submap;
 struct KeyHasher(u64);
 
 impl Hasher for KeyHasher {
+    /// Four bytes per round: `[i32; 3]` keys are hashed through here, byte-wise that was 13
+    /// dependent multiplies per key.
     fn write(&mut self, bytes: &[u8]) {
-        for b in bytes {
+        let mut words = bytes.chunks_exact(4);
+        for w in &mut words {
+            if let Ok(w) = <[u8; 4]>::try_from(w) {
+                self.write_u64(u64::from(u32::from_le_bytes(w)));
+            }
+        }
+        for b in words.remainder() {
             self.write_u8(*b);
         }
+    }
+
+    fn write_usize(&mut self, i: usize) {
+        self.write_u64(i as u64);
     }
 
     fn write_u8(&mut self, i: u8) {
@@ -210,6 +222,9 @@ pub struct GlobalMap {
     /// Composition of the finished submaps at their composed poses.
     cloud: HashMap<[i32; 3], CloudAcc>,
     occupancy: HashMap<VoxelKey, f32>,
+    /// `occupancy` as an [`OccupancyMap`], kept up to date so that a compose clones it instead of
+    /// re-inserting every leaf (0.55 s for the 3.7 M leaves of the KITTI run).
+    occupancy_map: OccupancyMap,
     /// Voxels of submaps removed or replaced since the last compose, to be re-summed.
     pending_cloud: HashSet<[i32; 3]>,
     pending_occupancy: HashSet<VoxelKey>,
@@ -222,6 +237,7 @@ impl GlobalMap {
             entries: BTreeMap::new(),
             cloud: HashMap::default(),
             occupancy: HashMap::default(),
+            occupancy_map: OccupancyMap::new(config.occupancy_resolution_m, config.occupancy_params),
             pending_cloud: HashSet::default(),
             pending_occupancy: HashSet::default(),
         }
@@ -322,11 +338,10 @@ impl GlobalMap {
         stats.dirty_occupancy_voxels = dirty_occupancy.len();
         self.resum(&dirty_cloud, &dirty_occupancy);
 
+        self.update_occupancy_map(&dirty_occupancy);
+
         let mut cloud = self.cloud.clone();
-        let mut occupancy = OccupancyMap::new(config.occupancy_resolution_m, config.occupancy_params);
-        for (k, l) in &self.occupancy {
-            occupancy.set_log_odds(*k, *l);
-        }
+        let mut occupancy = self.occupancy_map.clone();
         if let Some((submap, t_global_submap)) = current {
             let c = contribution(submap, t_global_submap, &config);
             for (k, acc) in &c.cloud {
@@ -342,6 +357,24 @@ impl GlobalMap {
         out.points.extend(keys.iter().filter_map(|k| cloud.get(k).map(|acc| acc.point(k, config.cloud_leaf_m))));
         stats.elapsed = started.elapsed();
         Composition { cloud: out, occupancy, stats }
+    }
+
+    /// Brings `occupancy_map` in line with `occupancy` after the `dirty` voxels were re-summed. The
+    /// map cannot drop a leaf, so a voxel that lost all its contributions means a rebuild.
+    fn update_occupancy_map(&mut self, dirty: &HashSet<VoxelKey>) {
+        if dirty.iter().all(|k| self.occupancy.contains_key(k)) {
+            for k in dirty {
+                if let Some(l) = self.occupancy.get(k) {
+                    self.occupancy_map.set_log_odds(*k, *l);
+                }
+            }
+        } else {
+            let mut map = OccupancyMap::new(self.config.occupancy_resolution_m, self.config.occupancy_params);
+            for (k, l) in &self.occupancy {
+                map.set_log_odds(*k, *l);
+            }
+            self.occupancy_map = map;
+        }
     }
 
     /// Recomputes the given composed voxels from all contributions, in composition order: per
@@ -463,7 +496,9 @@ fn resample_occupancy(
     let rotation = t_global_submap.rotation.to_rotation_matrix();
     let half_extent: [f64; 3] =
         std::array::from_fn(|a| 0.5 * r_src * (0..3).map(|j| rotation[(a, j)].abs()).sum::<f64>() * (1.0 + 1e-9));
-    for (src_key, _) in source.iter() {
+    let bricks = Bricks::of(source);
+    let mut last_brick = None;
+    for (src_key, _) in bricks.leaves() {
         let c = source.centre_of(&src_key);
         let centre_global = t_global_submap * Point3::new(c[0], c[1], c[2]);
         let range = |a: usize| {
@@ -479,7 +514,7 @@ fn resample_occupancy(
                     if source.key_of(p_submap.x, p_submap.y, p_submap.z) != src_key {
                         continue;
                     }
-                    if let Some(l) = trilinear_known(source, &p_submap) {
+                    if let Some(l) = trilinear_known(&bricks, r_src, &p_submap, &mut last_brick) {
                         out.insert(k, l);
                     }
                 }
@@ -489,9 +524,76 @@ fn resample_occupancy(
     out
 }
 
+/// Edge of a [`Bricks`] brick in leaves (a power of two).
+const BRICK_BITS: u32 = 3;
+const BRICK_EDGE: i32 = 1 << BRICK_BITS;
+const BRICK_CELLS: usize = (BRICK_EDGE * BRICK_EDGE * BRICK_EDGE) as usize;
+
+/// A copy of an occupancy grid's log-odds in dense 8×8×8 bricks (NaN = unknown). Resampling
+/// looks up 8 neighbours per output voxel; in one hash map of ~0.5 M leaves each lookup is a
+/// cache miss, in bricks they mostly fall into the brick just used. The values are the same,
+/// so the resampled grid is too.
+struct Bricks {
+    index: HashMap<VoxelKey, usize>,
+    cells: Vec<[f32; BRICK_CELLS]>,
+    keys: Vec<VoxelKey>,
+}
+
+impl Bricks {
+    fn split(k: &VoxelKey) -> (VoxelKey, usize) {
+        let brick = [k[0] >> BRICK_BITS, k[1] >> BRICK_BITS, k[2] >> BRICK_BITS];
+        let m = BRICK_EDGE - 1;
+        let cell = ((k[2] & m) * BRICK_EDGE + (k[1] & m)) * BRICK_EDGE + (k[0] & m);
+        (brick, cell as usize)
+    }
+
+    fn of(source: &OccupancyMap) -> Bricks {
+        let mut b = Bricks { index: HashMap::default(), cells: Vec::new(), keys: Vec::new() };
+        for (k, l) in source.iter() {
+            let (brick, cell) = Bricks::split(&k);
+            let i = *b.index.entry(brick).or_insert_with(|| {
+                b.cells.push([f32::NAN; BRICK_CELLS]);
+                b.keys.push(brick);
+                b.cells.len() - 1
+            });
+            b.cells[i][cell] = l;
+        }
+        b
+    }
+
+    fn get(&self, k: &VoxelKey, last: &mut Option<(VoxelKey, usize)>) -> Option<f32> {
+        let (brick, cell) = Bricks::split(k);
+        let i = match *last {
+            Some((b, i)) if b == brick => i,
+            _ => {
+                let i = *self.index.get(&brick)?;
+                *last = Some((brick, i));
+                i
+            }
+        };
+        let l = self.cells[i][cell];
+        (!l.is_nan()).then_some(l)
+    }
+
+    /// Known leaves, brick by brick (so neighbouring lookups stay in cache).
+    fn leaves(&self) -> impl Iterator<Item = (VoxelKey, f32)> + '_ {
+        self.keys.iter().zip(&self.cells).flat_map(|(brick, cells)| {
+            cells.iter().enumerate().filter(|(_, l)| !l.is_nan()).map(move |(cell, l)| {
+                let m = BRICK_EDGE as usize - 1;
+                let (x, y, z) = (cell & m, (cell >> BRICK_BITS) & m, cell >> (2 * BRICK_BITS));
+                let key = [
+                    (brick[0] << BRICK_BITS) + x as i32,
+                    (brick[1] << BRICK_BITS) + y as i32,
+                    (brick[2] << BRICK_BITS) + z as i32,
+                ];
+                (key, *l)
+            })
+        })
+    }
+}
+
 /// Trilinear interpolation of the log-odds at `p` over the known voxel centres around it.
-fn trilinear_known(source: &OccupancyMap, p: &Point3<f64>) -> Option<f32> {
-    let r = source.resolution_m;
+fn trilinear_known(source: &Bricks, r: f64, p: &Point3<f64>, last: &mut Option<(VoxelKey, usize)>) -> Option<f32> {
     let u = [p.x / r - 0.5, p.y / r - 0.5, p.z / r - 0.5];
     let i0 = [u[0].floor(), u[1].floor(), u[2].floor()];
     let f = [u[0] - i0[0], u[1] - i0[1], u[2] - i0[2]];
@@ -505,7 +607,7 @@ fn trilinear_known(source: &OccupancyMap, p: &Point3<f64>) -> Option<f32> {
             w *= if upper { f[a] } else { 1.0 - f[a] };
         }
         if w > 0.0
-            && let Some(l) = source.log_odds(&k)
+            && let Some(l) = source.get(&k, last)
         {
             sum += w * f64::from(l);
             weight += w;

@@ -95,6 +95,13 @@ impl HeightConsistency {
         }
     }
 
+    /// Centres (x, y) of the cells seen by ≥ 2 frames, in key order.
+    pub fn cell_centres(&self) -> Vec<(f64, f64)> {
+        let mut keys: Vec<_> = self.cells.iter().filter(|(_, c)| c.2 >= 2).map(|(k, _)| *k).collect();
+        keys.sort_unstable();
+        keys.iter().map(|k| ((f64::from(k.0) + 0.5) * self.cell_m, (f64::from(k.1) + 0.5) * self.cell_m)).collect()
+    }
+
     /// (cells seen by ≥ 2 frames, median spread, 95th-percentile spread) in metres.
     pub fn spread(&self) -> (usize, f64, f64) {
         let mut s: Vec<f64> = self.cells.values().filter(|c| c.2 >= 2).map(|c| c.1 - c.0).collect();
@@ -102,6 +109,88 @@ impl HeightConsistency {
         let q = |f: f64| if s.is_empty() { f64::NAN } else { s[((s.len() - 1) as f64 * f).round() as usize] };
         (s.len(), q(0.5), q(0.95))
     }
+}
+
+/// A plane `n·p = d` with unit normal `n` pointing up.
+#[derive(Debug, Clone, Copy)]
+pub struct Plane {
+    pub normal: Vector3<f64>,
+    pub d: f64,
+}
+
+impl Plane {
+    pub fn distance(&self, p: &Point3<f64>) -> f64 {
+        self.normal.dot(&p.coords) - self.d
+    }
+
+    pub fn tilt_deg(&self) -> f64 {
+        self.normal.z.clamp(-1.0, 1.0).acos().to_degrees()
+    }
+
+    /// Height of the plane above the origin's x–y position.
+    pub fn z_at(&self, x: f64, y: f64) -> f64 {
+        (self.d - self.normal.x * x - self.normal.y * y) / self.normal.z
+    }
+}
+
+/// RANSAC for the plane with the most points within `inlier_m`, among planes whose normal is
+/// within `max_tilt_deg` of +z (seeded, deterministic). Returns the plane and its inlier count.
+pub fn fit_horizontal_plane(
+    points: &[Point3<f64>],
+    max_tilt_deg: f64,
+    inlier_m: f64,
+    iterations: usize,
+    seed: u64,
+) -> Option<(Plane, usize)> {
+    if points.len() < 3 {
+        return None;
+    }
+    let mut state = seed | 1;
+    let mut next = |n: usize| {
+        // xorshift64*: enough for picking samples.
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        (state.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 33) as usize % n
+    };
+    let min_nz = max_tilt_deg.to_radians().cos();
+    let count = |plane: &Plane| points.iter().filter(|p| plane.distance(p).abs() < inlier_m).count();
+    let mut best: Option<(Plane, usize)> = None;
+    for _ in 0..iterations {
+        let (a, b, c) = (points[next(points.len())], points[next(points.len())], points[next(points.len())]);
+        let mut normal = (b - a).cross(&(c - a));
+        if normal.norm() < 1e-6 {
+            continue;
+        }
+        normal.normalize_mut();
+        if normal.z < 0.0 {
+            normal = -normal;
+        }
+        if normal.z < min_nz {
+            continue;
+        }
+        let plane = Plane { normal, d: normal.dot(&a.coords) };
+        let n = count(&plane);
+        if best.is_none_or(|(_, m)| n > m) {
+            best = Some((plane, n));
+        }
+    }
+    // Least-squares refit z = αx + βy + γ on the inliers.
+    let (plane, _) = best?;
+    let inliers: Vec<&Point3<f64>> = points.iter().filter(|p| plane.distance(p).abs() < inlier_m).collect();
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = Vector3::<f64>::zeros();
+    for p in &inliers {
+        let row = Vector3::new(p.x, p.y, 1.0);
+        ata += row * row.transpose();
+        atb += row * p.z;
+    }
+    let refined = ata.lu().solve(&atb).map_or(plane, |x| {
+        let n = Vector3::new(-x[0], -x[1], 1.0);
+        let norm = n.norm();
+        Plane { normal: n / norm, d: x[2] / norm }
+    });
+    Some((refined, count(&refined)))
 }
 
 /// Back-projects the valid pixels of `depth` within `[min_m, max_m]` (every `step`-th pixel).
@@ -150,6 +239,37 @@ impl Canvas {
                 if depth < self.depth[i] {
                     self.depth[i] = depth;
                     self.rgb[3 * i..3 * i + 3].copy_from_slice(&rgb);
+                }
+            }
+        }
+    }
+
+    /// Eye-dome lighting: darkens a pixel by how far behind its neighbours (3 px away) it lies,
+    /// in log depth, quantized to 4 levels to keep the PNG small.
+    pub fn eye_dome(&mut self) {
+        let (w, h) = (self.width as i64, self.height as i64);
+        let log_depth: Vec<f32> = self.depth.iter().map(|d| if d.is_finite() { d.ln() } else { f32::NAN }).collect();
+        for y in 0..h {
+            for x in 0..w {
+                let i = (y * w + x) as usize;
+                let here = log_depth[i];
+                if here.is_nan() {
+                    continue;
+                }
+                let mut behind = 0.0f32;
+                for (dx, dy) in [(3, 0), (-3, 0), (0, 3), (0, -3)] {
+                    let (nx, ny) = (x + dx, y + dy);
+                    if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                        continue;
+                    }
+                    let there = log_depth[(ny * w + nx) as usize];
+                    // Background counts as far behind: the outline of the cloud.
+                    behind += if there.is_nan() { 0.0 } else { (here - there).max(0.0) };
+                }
+                let shade = (-40.0 * behind).exp();
+                let shade = (shade * 3.0).round() / 3.0 * 0.75 + 0.25;
+                for c in &mut self.rgb[3 * i..3 * i + 3] {
+                    *c = (f32::from(*c) * shade) as u8;
                 }
             }
         }
@@ -217,7 +337,52 @@ pub fn render_top_down(points: &[MapPoint], width: usize) -> Canvas {
     canvas
 }
 
-/// Pinhole view from `eye` towards `target` (z up), `fov_deg` horizontal.
+/// A view looking at the robust centre of the cloud from `azimuth_deg` (0 = from −x, counter-
+/// clockwise) and `elevation_deg` above the horizon, at the distance that fits the cloud's robust
+/// bounding box (1st–99th percentile per axis) into the picture with a margin.
+pub fn frame_view(
+    points: &[MapPoint],
+    azimuth_deg: f64,
+    elevation_deg: f64,
+    fov_deg: f64,
+    (width, height): (usize, usize),
+) -> (Point3<f64>, Point3<f64>) {
+    let quantiles = |a: usize| {
+        let mut v: Vec<f64> = points.iter().map(|p| f64::from(p.position_m[a])).collect();
+        v.sort_by(f64::total_cmp);
+        if v.is_empty() {
+            return (0.0, 0.0);
+        }
+        let q = |f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+        (q(0.01), q(0.99))
+    };
+    let (x, y, z) = (quantiles(0), quantiles(1), quantiles(2));
+    let target = Point3::new((x.0 + x.1) / 2.0, (y.0 + y.1) / 2.0, (z.0 + z.1) / 2.0);
+    let (az, el) = (azimuth_deg.to_radians(), elevation_deg.to_radians());
+    // Unit vector from the target to the eye.
+    let back = Vector3::new(-az.cos() * el.cos(), -az.sin() * el.cos(), el.sin());
+    let view = Isometry3::look_at_rh(&(target + back), &target, &Vector3::z());
+    let f = (width as f64 / 2.0) / (fov_deg.to_radians() / 2.0).tan();
+    // Each corner at camera offset (cx, cy, −cz) from the target sits at depth distance + cz: it
+    // fits when f·|cx| / (distance + cz) ≤ 0.45·width (and likewise vertically).
+    let mut distance: f64 = 1.0;
+    for cx in [x.0, x.1] {
+        for cy in [y.0, y.1] {
+            for cz in [z.0, z.1] {
+                let c = view.rotation * (Point3::new(cx, cy, cz) - target);
+                let along = -c.z;
+                distance = distance
+                    .max(f * c.x.abs() / (0.45 * width as f64) - along)
+                    .max(f * c.y.abs() / (0.45 * height as f64) - along);
+            }
+        }
+    }
+    (target + back * distance, target)
+}
+
+/// Pinhole view from `eye` towards `target` (z up), `fov_deg` horizontal. Points are shaded by
+/// eye-dome lighting (darker where neighbouring pixels are nearer), so the silhouettes of
+/// obstacles stand out against the ground behind them.
 pub fn render_perspective(
     points: &[MapPoint],
     eye: Point3<f64>,
@@ -239,8 +404,10 @@ pub fn render_perspective(
         let (u, v) = (width as f64 / 2.0 + f * c.x / z, height as f64 / 2.0 - f * c.y / z);
         let size = ((f * 0.05 / z).ceil() as usize).clamp(1, 8);
         let colour = height_colour((pw.z - lo) / (hi - lo), p.intensity, p.obstacle);
+        let size = if p.obstacle { size + 1 } else { size };
         canvas.splat(u, v, z as f32, size, colour);
     }
+    canvas.eye_dome();
     canvas
 }
 

@@ -203,6 +203,11 @@ impl TeamGraph {
         &self.online
     }
 
+    /// Whether the frame switch that finished submap `id` has arrived (the submap is complete).
+    pub fn knows_switch_out_of(&self, id: SubmapId) -> bool {
+        self.switches.contains_key(&SubmapId::new(id.robot, id.index + 1))
+    }
+
     /// Detections and landmark observations still waiting for filter poses.
     pub fn pending(&self) -> usize {
         self.pending_detections.len() + self.pending_landmarks.len()
