@@ -52,7 +52,7 @@ fn frame_switches_compose_back_to_the_unswitched_trajectory() {
     let world = world();
     let plain = sim_run::run(world, sim_run::sim_options(world, true), false, None).unwrap();
     let mut options = sim_run::sim_options(world, true);
-    options.switch = SwitchPolicy { distance_m: Some(1.5), sigma_m: None };
+    options.switch = SwitchPolicy { distance_m: Some(1.5), ..SwitchPolicy::default() };
     let switched = sim_run::run(world, options, false, None).unwrap();
     assert!(switched.summary.frame_switches >= 2, "{:?}", switched.summary);
     assert_eq!(plain.stamps_ns, switched.stamps_ns);

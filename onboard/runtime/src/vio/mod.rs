@@ -30,21 +30,33 @@ pub mod pipeline;
 pub mod score;
 
 pub use dataset::{Dataset, DatasetKind, open_dataset};
-pub use pipeline::{VioPipeline, VioSummary};
+pub use pipeline::{LocalPoseSample, VioPipeline, VioSummary};
 pub use score::{Score, load_ground_truth, score};
 
 use filter::FilterConfig;
 use filter::config::ImuNoise;
+use mapper::submap::SubmapPolicy;
 use vision::VoConfig;
 
 /// When the pipeline asks the filter for a frame-of-reference switch (the mapper's request in the
-/// full system; thesis §4.1.2 starts a submap after 7 m or at 0.2 m position uncertainty).
+/// full system; thesis §4.1.2 starts a submap after 7 m or at 0.2 m position uncertainty). The
+/// rules are OR-ed; with none set the filter never switches.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct SwitchPolicy {
-    /// Switch when the body is this far from the current frame's origin.
+    /// Switch when the body is this far (straight line) from the current frame's origin.
     pub distance_m: Option<f64>,
-    /// Switch when the largest position standard deviation exceeds this.
+    /// Switch when the largest position standard deviation (diagonal) exceeds this.
     pub sigma_m: Option<f64>,
+    /// The mapper's rule, exactly as [`mapper::submap::Submapper::on_filter_state`] applies it: the
+    /// worst-direction position sigma ([`SubmapPolicy::position_sigma_m`]) above
+    /// `max_position_sigma_m`, or the path length of the filter's body positions since the last
+    /// switch above `max_distance_m`. So the filter switches where the mapper would request it.
+    pub submap: Option<SubmapPolicy>,
+    /// Evaluate the rules only on the filter states whose stamp reaches the next multiple of
+    /// this period (the mapper sees the filter pose with each image, i.e. at the camera rate);
+    /// `None` = at every IMU sample. The submap path length is summed over the evaluated states,
+    /// as the mapper sums the states it sees.
+    pub period_ns: Option<u64>,
 }
 
 /// Which odometry results become filter updates.
@@ -92,6 +104,11 @@ pub struct VioOptions {
     /// default 8 comes from the 20-seed simulation (onboard/BENCHMARKS.md): it brings the
     /// orientation NEES into its chi-square bounds.
     pub vo_covariance_scale: f64,
+    /// Log the filter's pose in its current local frame with covariance
+    /// ([`VioPipeline::pose_log`]) on the filter state whose stamp reaches the next multiple of
+    /// this period. `None` = no log. The simulator's IMU and camera share one grid from stamp 0
+    /// (IMU 200 Hz, camera 10 Hz), so a 100 ms period logs exactly at the capture stamps.
+    pub pose_log_period_ns: Option<u64>,
 }
 
 /// The EuRoC ADIS16448 densities (`imu0/sensor.yaml` of EuRoC), used when a dataset has none.
@@ -130,6 +147,7 @@ impl Default for VioOptions {
             vo_prior: true,
             vo_updates: VoUpdates::EveryFrame,
             vo_covariance_scale: 8.0,
+            pose_log_period_ns: None,
         }
     }
 }

@@ -8,7 +8,8 @@ use filter::{
 };
 use fpga_model::{DisparityImage, GrayImage};
 use hal::sensor::{ImuSample, SensorEvent, SensorSource, StereoCalibration, StereoFrame, WheelOdomSample};
-use nalgebra::{Isometry3, Vector3};
+use mapper::submap::SubmapPolicy;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 use vision::{Rectifier, StereoOdometry, VoOutput};
 
 use super::{VioError, VioOptions, VoUpdates};
@@ -62,6 +63,28 @@ pub struct VioSummary {
     pub filter_ms_per_s: f64,
 }
 
+/// The filter's pose in its current local frame at one stamp ([`VioOptions::pose_log_period_ns`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalPoseSample {
+    pub stamp_ns: u64,
+    /// The local frame `t_local_body` is in (the filter's frame id: 0, then +1 per switch).
+    pub frame_id: u32,
+    pub t_local_body: Isometry3<f64>,
+    /// [`Filter::pose_covariance`] convention: `[δt (local frame); δθ (body, right-multiplied)]`.
+    pub covariance: Matrix6<f64>,
+}
+
+/// Whether `stamp_ns` reached `*next_ns`; if so, moves `*next_ns` to the following multiple of
+/// `period_ns` (a zero period fires every time).
+fn reached_period(stamp_ns: u64, next_ns: &mut u64, period_ns: u64) -> bool {
+    if stamp_ns < *next_ns {
+        return false;
+    }
+    let period_ns = period_ns.max(1);
+    *next_ns = (stamp_ns / period_ns).saturating_add(1).saturating_mul(period_ns);
+    true
+}
+
 /// A VO result waiting for its latency to pass.
 #[derive(Debug, Clone, Copy)]
 struct PendingVo {
@@ -98,6 +121,13 @@ pub struct VioPipeline {
     /// The current local frame in the first one (chained `t_old_new` of every switch).
     t_first_local: Isometry3<f64>,
     switches: Vec<FrameSwitch>,
+    /// Next stamp at which the switch policy is evaluated ([`super::SwitchPolicy::period_ns`]).
+    next_switch_check_ns: u64,
+    /// Path length of the evaluated body positions since the last switch, and the last one.
+    switch_path_m: f64,
+    switch_last_position: Option<Vector3<f64>>,
+    pose_log: Vec<LocalPoseSample>,
+    next_pose_log_ns: u64,
     /// Filter poses (first frame) at recent capture times, for the odometry prior.
     capture_poses: VecDeque<(u64, Isometry3<f64>)>,
     /// Keyframe the odometry currently measures against (its latest keyframe).
@@ -162,6 +192,11 @@ impl VioPipeline {
             last_zupt_ns: None,
             t_first_local: Isometry3::identity(),
             switches: Vec::new(),
+            next_switch_check_ns: 0,
+            switch_path_m: 0.0,
+            switch_last_position: None,
+            pose_log: Vec::new(),
+            next_pose_log_ns: 0,
             capture_poses: VecDeque::with_capacity(CAPTURE_POSES_KEPT + 1),
             keyframe_ns: None,
             last_vo: None,
@@ -205,6 +240,11 @@ impl VioPipeline {
     /// The frame switches so far (each `t_old_new` with its covariance: the graph's factors).
     pub fn frame_switches(&self) -> &[FrameSwitch] {
         &self.switches
+    }
+
+    /// The logged filter poses in their local frames ([`VioOptions::pose_log_period_ns`]).
+    pub fn pose_log(&self) -> &[LocalPoseSample] {
+        &self.pose_log
     }
 
     /// The current local frame in the first one.
@@ -493,7 +533,7 @@ impl VioPipeline {
 
     fn apply_switch_policy(&mut self) -> Result<(), VioError> {
         let policy = self.options.switch;
-        if policy.distance_m.is_none() && policy.sigma_m.is_none() {
+        if policy.distance_m.is_none() && policy.sigma_m.is_none() && policy.submap.is_none() {
             return Ok(());
         }
         let Some(filter) = self.filter.as_mut() else {
@@ -502,13 +542,38 @@ impl VioPipeline {
         let Some(state) = filter.state() else {
             return Ok(());
         };
-        let distance_m = state.t_local_body.translation.vector.norm();
-        let sigma_m = (0..3).map(|i| state.covariance[(i, i)]).fold(0.0_f64, f64::max).sqrt();
+        if let Some(period_ns) = policy.period_ns
+            && !reached_period(state.stamp_ns, &mut self.next_switch_check_ns, period_ns)
+        {
+            return Ok(());
+        }
+        let p = state.t_local_body.translation.vector;
+        let finite = p.iter().all(|v| v.is_finite());
+        if let Some(last) = self.switch_last_position
+            && finite
+        {
+            self.switch_path_m += (p - last).norm();
+        }
+        if finite {
+            self.switch_last_position = Some(p);
+        }
+        let position_covariance: Matrix3<f64> = state.covariance.fixed_view::<3, 3>(0, 0).into_owned();
+        let distance_m = p.norm();
+        let sigma_m = (0..3).map(|i| position_covariance[(i, i)]).fold(0.0_f64, f64::max).sqrt();
         let far = policy.distance_m.is_some_and(|d| distance_m >= d);
         let uncertain = policy.sigma_m.is_some_and(|s| sigma_m >= s);
-        if far || uncertain {
+        // Strict comparisons and the worst-direction sigma, as the mapper decides.
+        let submap = policy.submap.is_some_and(|s| {
+            SubmapPolicy::position_sigma_m(&position_covariance) > s.max_position_sigma_m
+                || self.switch_path_m > s.max_distance_m
+        });
+        if far || uncertain || submap {
             let switch = filter.switch_frame()?;
             self.t_first_local *= switch.t_old_new;
+            // The path continues from the body's position, now in the new frame.
+            self.switch_last_position =
+                self.switch_last_position.map(|last| switch.t_old_new.inverse_transform_point(&last.into()).coords);
+            self.switch_path_m = 0.0;
             self.switches.push(switch);
             self.summary.frame_switches += 1;
         }
@@ -516,9 +581,32 @@ impl VioPipeline {
     }
 
     fn output_filter_pose(&mut self) {
-        if let Some(state) = self.filter.as_ref().and_then(Filter::state) {
-            let pose = self.t_first_local * state.t_local_body;
-            self.push_pose(state.stamp_ns, pose);
+        let Some(filter) = self.filter.as_ref() else {
+            return;
+        };
+        let Some(state) = filter.state() else {
+            return;
+        };
+        let covariance = self.options.pose_log_period_ns.map(|_| filter.pose_covariance());
+        let pose = self.t_first_local * state.t_local_body;
+        self.push_pose(state.stamp_ns, pose);
+        let (Some(period_ns), Some(covariance)) = (self.options.pose_log_period_ns, covariance) else {
+            return;
+        };
+        let sample = LocalPoseSample {
+            stamp_ns: state.stamp_ns,
+            frame_id: state.frame_id,
+            t_local_body: state.t_local_body,
+            covariance,
+        };
+        if reached_period(state.stamp_ns, &mut self.next_pose_log_ns, period_ns) {
+            self.pose_log.push(sample);
+        } else if let Some(last) = self.pose_log.last_mut()
+            && last.stamp_ns == state.stamp_ns
+        {
+            // Updates after the logged sample at the same stamp (`finish`): keep the newest, as
+            // the trajectory does.
+            *last = sample;
         }
     }
 

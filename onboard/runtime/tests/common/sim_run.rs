@@ -4,8 +4,6 @@
 
 use std::sync::Arc;
 
-use filter::FilterConfig;
-use filter::config::ImuNoise;
 use hal::sensor::{SensorEvent, SensorSource, StereoFrame};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use onboard::vio::{VioError, VioOptions, VioPipeline, VioSummary};
@@ -29,16 +27,9 @@ pub fn moon_world(seed: u64, duration_s: f64, downscale: u32, pause_s: Option<f6
     World::build(&scenario).expect("world")
 }
 
-/// Filter tuning for the simulated IMU (its own noise model) and the site's gravity.
+/// Filter tuning for the simulated IMU and the site's gravity (the library's one copy).
 pub fn sim_options(world: &World, use_wheel: bool) -> VioOptions {
-    let noise = world.scenario.imu_noise;
-    let imu = ImuNoise::from(noise.densities(world.scenario.imu_rate_hz));
-    let mut filter = FilterConfig::from_imu_noise(imu, world.scenario.body.gravity_mps2());
-    filter.imu_rate_hz = world.scenario.imu_rate_hz;
-    // The simulator's turn-on biases, as the datasheet would state them.
-    filter.initial.gyro_bias_radps = noise.gyro_bias_init_radps.max(1e-6);
-    filter.initial.accel_bias_mps2 = noise.accel_bias_init_mps2.max(1e-6);
-    VioOptions { use_wheel, filter, ..VioOptions::default() }
+    onboard::team_record::sim_vio_options(world, use_wheel)
 }
 
 /// What one run measured.
