@@ -19,7 +19,7 @@
 //!
 //! Covariances use the posegraph convention (onboard/graph/README.md "Conventions"): tangent
 //! `[translation, rotation]`, right perturbation `T·Exp(δ)` with the true SE(3) exponential
-//! ([`se3_exp`], [`se3_log`]; sim does not depend on `posegraph`, so the maps are restated here).
+//! (`posegraph::se3`).
 //!
 //! # Detection noise
 //!
@@ -66,6 +66,8 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+
+use posegraph::se3::{adjoint, exp as se3_exp};
 
 use crate::rng::{self, streams};
 use crate::world::World;
@@ -533,57 +535,4 @@ fn block_diag_rotation(r: &Matrix3<f64>) -> Matrix6<f64> {
     m.fixed_view_mut::<3, 3>(0, 0).copy_from(r);
     m.fixed_view_mut::<3, 3>(3, 3).copy_from(r);
     m
-}
-
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
-/// Left Jacobian of SO(3), `J(φ) = I + (1 − cos θ)/θ²·[φ]× + (θ − sin θ)/θ³·[φ]×²`.
-fn so3_left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
-    let theta2 = phi.norm_squared();
-    let k = skew(phi);
-    let (a, b) = if theta2 < 1e-10 {
-        (0.5 - theta2 / 24.0, 1.0 / 6.0 - theta2 / 120.0)
-    } else {
-        let theta = theta2.sqrt();
-        ((1.0 - theta.cos()) / theta2, (theta - theta.sin()) / (theta2 * theta))
-    };
-    Matrix3::identity() + k * a + k * k * b
-}
-
-/// Inverse of [`so3_left_jacobian`]: `I − ½[φ]× + (1/θ² − (1 + cos θ)/(2θ sin θ))·[φ]×²`.
-fn so3_left_jacobian_inv(phi: &Vector3<f64>) -> Matrix3<f64> {
-    let theta2 = phi.norm_squared();
-    let k = skew(phi);
-    let c = if theta2 < 1e-10 {
-        1.0 / 12.0 + theta2 / 720.0
-    } else {
-        let theta = theta2.sqrt();
-        1.0 / theta2 - (1.0 + theta.cos()) / (2.0 * theta * theta.sin())
-    };
-    Matrix3::identity() - k * 0.5 + k * k * c
-}
-
-/// SE(3) exponential of `ξ = [ρ, φ]` (posegraph's order): `(Exp(φ), J(φ)·ρ)`.
-pub fn se3_exp(xi: &Vector6<f64>) -> Isometry3<f64> {
-    let rho = xi.fixed_rows::<3>(0).into_owned();
-    let phi = xi.fixed_rows::<3>(3).into_owned();
-    Isometry3::from_parts(Translation3::from(so3_left_jacobian(&phi) * rho), UnitQuaternion::from_scaled_axis(phi))
-}
-
-/// SE(3) logarithm, the inverse of [`se3_exp`] for rotations below π.
-pub fn se3_log(t: &Isometry3<f64>) -> Vector6<f64> {
-    let phi = t.rotation.scaled_axis();
-    let rho = so3_left_jacobian_inv(&phi) * t.translation.vector;
-    Vector6::new(rho.x, rho.y, rho.z, phi.x, phi.y, phi.z)
-}
-
-/// Adjoint of `t` on `[translation, rotation]` tangents: `t·Exp(ξ)·t⁻¹ = Exp(Ad(t)·ξ)`,
-/// `Ad = [[R, [p]×·R], [0, R]]`.
-pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
-    let r = t.rotation.to_rotation_matrix().into_inner();
-    let mut ad = block_diag_rotation(&r);
-    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&(skew(&t.translation.vector) * r));
-    ad
 }
