@@ -45,6 +45,10 @@ pub const DISTANCES_M: [f64; 3] = [2.5, 3.5, 4.5];
 /// Edge targets are taken every this far along a negative obstacle's edge.
 const EDGE_TARGET_SPACING_M: f64 = 3.0;
 
+/// Histogram of the SGM disparity error (see [`Tally::disparity_error_bins`]).
+pub const DISPARITY_BIN_PX: f64 = 0.02;
+pub const DISPARITY_SPAN_PX: f64 = 3.0;
+
 /// What a viewpoint was chosen for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Aim {
@@ -214,6 +218,12 @@ pub struct Tally {
     pub clusters_listed: usize,
     pub clusters_any: usize,
     pub classify_ms: Vec<f64>,
+    /// SGM disparity minus true disparity (from the rendered depth) of pixels whose true depth is
+    /// within the range cutoff: counts in bins of [`DISPARITY_BIN_PX`] over ±[`DISPARITY_SPAN_PX`],
+    /// then pixels beyond that span (blunders) and pixels SGM left invalid.
+    pub disparity_error_bins: Vec<u64>,
+    pub disparity_blunders: u64,
+    pub disparity_invalid: u64,
 }
 
 impl Tally {
@@ -234,6 +244,26 @@ impl Tally {
         self.clusters_listed += other.clusters_listed;
         self.clusters_any += other.clusters_any;
         self.classify_ms.extend_from_slice(&other.classify_ms);
+        self.disparity_error_bins.resize(other.disparity_error_bins.len().max(self.disparity_error_bins.len()), 0);
+        for (a, b) in self.disparity_error_bins.iter_mut().zip(&other.disparity_error_bins) {
+            *a += b;
+        }
+        self.disparity_blunders += other.disparity_blunders;
+        self.disparity_invalid += other.disparity_invalid;
+    }
+
+    /// Quantile `q` of the signed disparity error within ±[`DISPARITY_SPAN_PX`] (bin centres).
+    pub fn disparity_error_quantile_px(&self, q: f64) -> Option<f64> {
+        let total: u64 = self.disparity_error_bins.iter().sum();
+        let target = (q * total as f64).ceil().max(1.0) as u64;
+        let mut seen = 0;
+        for (k, &n) in self.disparity_error_bins.iter().enumerate() {
+            seen += n;
+            if seen >= target {
+                return Some((k as f64 + 0.5) * DISPARITY_BIN_PX - DISPARITY_SPAN_PX);
+            }
+        }
+        None
     }
 
     pub fn rock_recall(&self) -> Option<f64> {
@@ -406,11 +436,41 @@ impl<'w> Evaluator<'w> {
         let right = GrayImage::new(w, h, self.right.clone()).unwrap();
         self.matcher.compute_into(&left, &right, &mut self.disparity).unwrap();
         self.depth.fill_from_disparity(&self.disparity, &self.geometry);
+        self.measure_disparity_error(tally);
         let start = Instant::now();
         self.classifier.classify(&self.depth, &self.geometry, &t_world_cam, &mut self.labels);
         tally.classify_ms.push(start.elapsed().as_secs_f64() * 1e3);
         tally.frames += 1;
         self.score(&t_world_cam, tally);
+    }
+
+    /// Adds the SGM disparity error of this frame's pixels to `tally` (truth: the rendered
+    /// z-depth, `d = f·b / z`), for pixels whose true depth is within the classifier's range.
+    fn measure_disparity_error(&self, tally: &mut Tally) {
+        let fb = self.geometry.fx_px * self.geometry.baseline_m;
+        let max_depth_m = self
+            .config
+            .error_model(self.geometry.fx_px, self.geometry.baseline_m)
+            .max_depth_m(self.config.max_depth_error_m);
+        let bins = (2.0 * DISPARITY_SPAN_PX / DISPARITY_BIN_PX).round() as usize;
+        tally.disparity_error_bins.resize(bins, 0);
+        let truth = self.renderer.depth_m();
+        for (i, &zt) in truth.iter().enumerate() {
+            if !(zt.is_finite() && zt > 0.0 && f64::from(zt) <= max_depth_m) {
+                continue;
+            }
+            let Some(d) = self.disparity.get_px(i % self.width, i / self.width) else {
+                tally.disparity_invalid += 1;
+                continue;
+            };
+            let e = f64::from(d) - fb / f64::from(zt);
+            let k = ((e + DISPARITY_SPAN_PX) / DISPARITY_BIN_PX).floor();
+            if (0.0..bins as f64).contains(&k) {
+                tally.disparity_error_bins[k as usize] += 1;
+            } else {
+                tally.disparity_blunders += 1;
+            }
+        }
     }
 
     fn true_steps(&mut self) {
@@ -600,6 +660,7 @@ fn main() {
     let mut size_m = 60.0;
     let mut dump = false;
     let mut diagnose = false;
+    let mut config = ObstacleConfig::default();
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         let mut value = || args.next().and_then(|v| v.parse::<f64>().ok()).expect("a number");
@@ -608,17 +669,24 @@ fn main() {
             "--per-target" => per_target = value() as usize,
             "--open" => open = value() as usize,
             "--size" => size_m = value(),
+            "--pixel-error" => config.pixel_error_px = value(),
+            "--support" => config.step_support_cells = value() as usize,
+            "--min-cluster" => config.min_step_cluster_cells = value() as usize,
+            "--window" => config.window_cells = value() as usize,
             "--dump" => dump = true,
             "--diagnose" => diagnose = true,
             other => panic!("unknown argument {other}"),
         }
     }
-    let config = ObstacleConfig::default();
+    config.validate().expect("a valid configuration");
     println!(
-        "obstacles, Moon preset {size_m} m worlds: h_max {:.2} m, slope {:.0}°, window {} cells; {per_target} viewpoints per target at {DISTANCES_M:?} m, {open} open viewpoints per seed",
+        "obstacles, Moon preset {size_m} m worlds: h_max {:.2} m, slope {:.0}°, window {} cells, support {}, min cluster {}, Δp {} px; {per_target} viewpoints per target at {DISTANCES_M:?} m, {open} open viewpoints per seed",
         config.max_step_m,
         config.max_slope_rad.to_degrees(),
-        config.window_cells
+        config.window_cells,
+        config.step_support_cells,
+        config.min_step_cluster_cells,
+        config.pixel_error_px
     );
     let mut totals = [Tally::default(), Tally::default(), Tally::default()];
     let mut false_clusters = Vec::new();
@@ -682,6 +750,37 @@ fn main() {
             );
         }
     }
+    let inliers: u64 = all.disparity_error_bins.iter().sum();
+    let total = inliers + all.disparity_blunders + all.disparity_invalid;
+    let q = |q: f64| all.disparity_error_quantile_px(q).unwrap_or(f64::NAN);
+    let (p16, p50, p84) = (q(0.1587), q(0.5), q(0.8413));
+    let mad = {
+        let mut dev: Vec<(f64, u64)> = all
+            .disparity_error_bins
+            .iter()
+            .enumerate()
+            .map(|(k, &n)| (((k as f64 + 0.5) * DISPARITY_BIN_PX - DISPARITY_SPAN_PX - p50).abs(), n))
+            .collect();
+        dev.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut seen = 0;
+        dev.iter()
+            .find(|(_, n)| {
+                seen += n;
+                2 * seen >= inliers
+            })
+            .map_or(f64::NAN, |(d, _)| *d)
+    };
+    println!(
+        "SGM disparity error vs rendered truth (true depth <= range cutoff, {total} px): {:.2} % invalid, {:.2} % off by > {DISPARITY_SPAN_PX} px; within: median {p50:+.2} px, 15.9/84.1 % quantiles {p16:+.2}/{p84:+.2} px (half-width {:.2} px), 1.4826·MAD {:.2} px, 2.3/97.7 % {:+.2}/{:+.2} px, 0.1/99.9 % {:+.2}/{:+.2} px",
+        100.0 * all.disparity_invalid as f64 / total.max(1) as f64,
+        100.0 * all.disparity_blunders as f64 / total.max(1) as f64,
+        0.5 * (p84 - p16),
+        1.4826 * mad,
+        q(0.0228),
+        q(0.9772),
+        q(0.001),
+        q(0.999),
+    );
     let mut ms = all.classify_ms.clone();
     ms.sort_by(f64::total_cmp);
     if let Some(median) = ms.get(ms.len() / 2) {

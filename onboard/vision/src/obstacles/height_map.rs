@@ -60,6 +60,10 @@ pub struct HeightMap {
     origin: (i64, i64),
     sum_z: Vec<f64>,
     cells: Vec<HeightCell>,
+    /// Scratch of the step-cluster size rule.
+    visited: Vec<bool>,
+    stack: Vec<usize>,
+    group: Vec<usize>,
 }
 
 impl HeightMap {
@@ -133,10 +137,14 @@ impl HeightMap {
     }
 
     /// Means, then the step test on every known cell. Returns the number of step cells.
+    ///
+    /// The window's extremes are its `support`-th highest and `support`-th lowest cells (see
+    /// `ObstacleConfig::step_support_cells`): with 1 this is the thesis's max − min.
     pub(crate) fn classify_steps(
         &mut self,
         min_points: u32,
         window_cells: usize,
+        support: usize,
         max_step_m: f64,
         model: &StereoErrorModel,
         t_cam_local: &Isometry3<f64>,
@@ -146,6 +154,7 @@ impl HeightMap {
                 cell.height_m = (sum / f64::from(cell.points)) as f32;
             }
         }
+        let support = support.clamp(1, MAX_SUPPORT);
         let side = self.side as i64;
         let lo = -((window_cells as i64 - 1) / 2);
         let hi = lo + window_cells as i64 - 1;
@@ -156,33 +165,41 @@ impl HeightMap {
                 if !self.cells[index].is_known() {
                     continue;
                 }
-                // Extremes of the window: (height, index) of the lowest and the highest cell.
-                let (mut low, mut high) = ((f32::INFINITY, index), (f32::NEG_INFINITY, index));
+                // The `support` lowest and highest (height, index) of the window, sorted from the
+                // extreme inwards.
+                let mut lows = [(f32::INFINITY, index); MAX_SUPPORT];
+                let mut highs = [(f32::NEG_INFINITY, index); MAX_SUPPORT];
                 for r in (row + lo).max(0)..=(row + hi).min(side - 1) {
                     for c in (col + lo).max(0)..=(col + hi).min(side - 1) {
                         let k = (r * side + c) as usize;
                         let h = self.cells[k].height_m;
-                        if h < low.0 {
-                            low = (h, k);
+                        if h < lows[support - 1].0 {
+                            insert_sorted(&mut lows[..support], (h, k), |a, b| a < b);
                         }
-                        if h > high.0 {
-                            high = (h, k);
+                        if h > highs[support - 1].0 {
+                            insert_sorted(&mut highs[..support], (h, k), |a, b| a > b);
                         }
                     }
                 }
-                let h_diff = f64::from(high.0 - low.0);
+                let (low, high) = (lows[support - 1], highs[support - 1]);
+                // Fewer than `support` known cells on a side: no supported extreme, no step.
+                let h_diff =
+                    if low.0.is_finite() && high.0.is_finite() { f64::from(high.0 - low.0).max(0.0) } else { 0.0 };
                 // Δd of the two extreme cells' centres, back in the camera frame (trap 10).
                 let centre = |k: usize| {
                     let xy = self.centre_m(k);
                     let p = t_cam_local * Point3::new(xy.x, xy.y, f64::from(self.cells[k].height_m));
                     [p.x, p.y, p.z]
                 };
-                let delta_d =
-                    if high.1 == low.1 { 0.0 } else { model.distance_error_m(&centre(high.1), &centre(low.1)) };
+                let delta_d = if high.1 == low.1 || h_diff == 0.0 {
+                    0.0
+                } else {
+                    model.distance_error_m(&centre(high.1), &centre(low.1))
+                };
                 let threshold = max_step_m + delta_d;
                 let cell = &mut self.cells[index];
                 cell.h_diff_m = h_diff as f32;
-                cell.window_min_m = low.0;
+                cell.window_min_m = if low.0.is_finite() { low.0 } else { cell.height_m };
                 cell.threshold_m = threshold as f32;
                 cell.traversability = (h_diff / threshold) as f32;
                 cell.step = h_diff > threshold;
@@ -190,5 +207,65 @@ impl HeightMap {
             }
         }
         steps
+    }
+}
+
+impl HeightMap {
+    /// Clears the step verdict of 8-connected groups of fewer than `min_cells` step cells (see
+    /// `ObstacleConfig::min_step_cluster_cells`). Returns the number of step cells left.
+    pub(crate) fn drop_small_step_clusters(&mut self, min_cells: usize) -> usize {
+        let n = self.cells.len();
+        let side = self.side as i64;
+        self.visited.clear();
+        self.visited.resize(n, false);
+        let mut left = 0;
+        for first in 0..n {
+            if self.visited[first] || !self.cells[first].step {
+                continue;
+            }
+            self.visited[first] = true;
+            self.group.clear();
+            self.stack.clear();
+            self.stack.push(first);
+            while let Some(k) = self.stack.pop() {
+                self.group.push(k);
+                let (col, row) = ((k % self.side) as i64, (k / self.side) as i64);
+                for (dr, dc) in [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)] {
+                    let (r, c) = (row + dr, col + dc);
+                    if !(0..side).contains(&r) || !(0..side).contains(&c) {
+                        continue;
+                    }
+                    let j = (r * side + c) as usize;
+                    if self.cells[j].step && !self.visited[j] {
+                        self.visited[j] = true;
+                        self.stack.push(j);
+                    }
+                }
+            }
+            if self.group.len() < min_cells {
+                for &k in &self.group {
+                    let cell = &mut self.cells[k];
+                    cell.step = false;
+                    // Below 1: the cell is traversable now, whatever its noisy h_diff said.
+                    cell.traversability = cell.traversability.min(1.0);
+                }
+            } else {
+                left += self.group.len();
+            }
+        }
+        left
+    }
+}
+
+/// Largest `ObstacleConfig::step_support_cells`.
+pub(crate) const MAX_SUPPORT: usize = 3;
+
+/// Inserts `item` into `list` (sorted by `before`, full), dropping the last entry.
+fn insert_sorted(list: &mut [(f32, usize)], item: (f32, usize), before: impl Fn(f32, f32) -> bool) {
+    let mut k = list.len() - 1;
+    list[k] = item;
+    while k > 0 && before(list[k].0, list[k - 1].0) {
+        list.swap(k, k - 1);
+        k -= 1;
     }
 }

@@ -14,6 +14,11 @@
 //! keypoints from obstacle points, so labelling the foot would spread them onto flat ground.
 //! Negative-edge tops are obstacle pixels too (also flagged [`PixelLabels::NEGATIVE_EDGE`]).
 //!
+//! **Step support.** The thesis's `h_diff` is max − min over the window; on SGM depth one cell
+//! mean pulled by a blunder patch then makes a step. We take the window's second-highest and
+//! second-lowest cells instead (`ObstacleConfig::step_support_cells`): a real step has many
+//! cells on both sides.
+//!
 //! **Edge support.** A negative-edge top is kept only within an 8-connected group of at least
 //! `min_edge_pixels` tops. On simulated Moon views most single-pair "cliffs" were SGM blunders
 //! beside good pixels (the blunder floats above the ground and looks exactly like a rim); they
@@ -233,8 +238,17 @@ impl ObstacleClassifier {
         }
 
         let t_cam_local = t_local_cam.inverse();
-        stats.step_cells =
-            self.map.classify_steps(cfg.min_points_per_cell, cfg.window_cells, cfg.max_step_m, &model, &t_cam_local);
+        stats.step_cells = self.map.classify_steps(
+            cfg.min_points_per_cell,
+            cfg.window_cells,
+            cfg.step_support_cells,
+            cfg.max_step_m,
+            &model,
+            &t_cam_local,
+        );
+        if cfg.min_step_cluster_cells > 1 {
+            stats.step_cells = self.map.drop_small_step_clusters(cfg.min_step_cluster_cells);
+        }
         stats.known_cells = self.map.cells().iter().filter(|c| c.is_known()).count();
         self.support_edges(w, n);
         for (&(pixel, cell, traversability), _) in self.edge_tops.iter().zip(&self.edge_keep).filter(|(_, k)| **k) {
