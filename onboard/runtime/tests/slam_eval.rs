@@ -5,8 +5,8 @@
 use std::sync::Arc;
 
 use mapper::slam::Topology;
-use onboard::slam_eval::{self, ExchangeOptions, Variant};
-use onboard::team_record::{self, TeamRecordOptions};
+use onboard::slam_eval::{self, ExchangeLog, ExchangeOptions, RobotResult, Variant};
+use onboard::team_record::{self, RobotRecord, TeamRecordOptions};
 use sim::scenario::{self, ScenarioOptions};
 use sim::world::World;
 
@@ -22,6 +22,17 @@ fn options() -> TeamRecordOptions {
     }
 }
 
+/// One robot's received data replayed into `variant`.
+fn scored(
+    world: &Arc<World>,
+    record: &RobotRecord,
+    log: &ExchangeLog,
+    exchange: &ExchangeOptions,
+    variant: Variant,
+) -> RobotResult {
+    slam_eval::evaluate(world, record, &log.received[record.robot], variant, exchange.truth).unwrap().unwrap()
+}
+
 #[test]
 fn robots_on_the_start_ring_see_each_other_and_share_one_frame() {
     let options = options();
@@ -32,23 +43,12 @@ fn robots_on_the_start_ring_see_each_other_and_share_one_frame() {
     // They start 3–4 m apart facing out of the ring and drive petals back through it.
     assert!(log.detections >= 1, "{log:?}");
     for record in &records {
-        let multi = slam_eval::evaluate(
-            &world,
-            record,
-            &log.received[record.robot],
-            Variant::Multi(Topology::LocalReference),
-            exchange.truth,
-        )
-        .unwrap()
-        .unwrap();
+        let multi = scored(&world, record, &log, &exchange, Variant::Multi(Topology::LocalReference));
         assert_eq!(multi.connected, vec![0, 1], "robot {}", record.robot);
         assert_eq!(multi.size.thesis_formula(), (multi.size.nodes, multi.size.factors));
         assert_eq!(multi.size.submaps.len(), 2);
         assert!(multi.size.detections >= 1);
-        let filter =
-            slam_eval::evaluate(&world, record, &log.received[record.robot], Variant::FilterOnly, exchange.truth)
-                .unwrap()
-                .unwrap();
+        let filter = scored(&world, record, &log, &exchange, Variant::FilterOnly);
         assert_eq!(filter.connected, vec![record.robot as u16]);
         // In 60 s the filter drifts by centimetres; the graph must not make that worse by more
         // than the constraints' own noise (detections: 1 cm × (1 + d) per axis).
@@ -59,15 +59,7 @@ fn robots_on_the_start_ring_see_each_other_and_share_one_frame() {
             multi.position.mean,
             filter.position.mean
         );
-        let sequential = slam_eval::evaluate(
-            &world,
-            record,
-            &log.received[record.robot],
-            Variant::Multi(Topology::SequentialOdometry),
-            exchange.truth,
-        )
-        .unwrap()
-        .unwrap();
+        let sequential = scored(&world, record, &log, &exchange, Variant::Multi(Topology::SequentialOdometry));
         assert_eq!(sequential.size.thesis_formula(), (sequential.size.nodes, sequential.size.factors));
         assert_eq!(sequential.dropped_out_of_order, 0);
     }
@@ -103,15 +95,7 @@ fn robots_that_never_meet_stay_unconnected() {
     assert_eq!(log.detections, 0);
     assert_eq!(log.inter_robot_matches, 0);
     for record in &records {
-        let result = slam_eval::evaluate(
-            &world,
-            record,
-            &log.received[record.robot],
-            Variant::Multi(Topology::LocalReference),
-            exchange.truth,
-        )
-        .unwrap()
-        .unwrap();
+        let result = scored(&world, record, &log, &exchange, Variant::Multi(Topology::LocalReference));
         // Each robot knows the other's submaps but places none of them.
         assert_eq!(result.connected, vec![record.robot as u16]);
         assert_eq!(result.size.submaps.len(), 1);
