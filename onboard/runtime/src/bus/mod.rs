@@ -1,0 +1,1 @@
+//! iceoryx2 bus adapter (being written).

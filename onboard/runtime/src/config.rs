@@ -1,0 +1,1 @@
+//! Rover configuration (being written).

@@ -1,0 +1,1 @@
+//! Lockstep runner (being written).

@@ -1,0 +1,1 @@
+//! comms node (being written).

@@ -1,0 +1,1 @@
+//! driver node (being written).

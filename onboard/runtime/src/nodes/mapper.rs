@@ -1,0 +1,1 @@
+//! mapper node (being written).

@@ -1,0 +1,1 @@
+//! Bus recording and replay (being written).

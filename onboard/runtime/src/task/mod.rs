@@ -1,0 +1,1 @@
+//! Fixed-rate tasks (being written).
