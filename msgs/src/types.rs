@@ -44,7 +44,7 @@ pub struct WheelOdomMsg {
 
 /// `sensors/stereo` user header. The slice payload is `[u8]` of length `2 · width · height`: the
 /// left image's rows, then the right image's rows (rectified, 8-bit grey).
-#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend, Default)]
 #[repr(C)]
 #[type_name("rover.StereoHeader.v1")]
 pub struct StereoHeader {
@@ -59,7 +59,7 @@ pub struct StereoHeader {
 }
 
 /// `vision/disparity` user header. The slice payload is `[DisparityPixel]` of `width · height`.
-#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend, Default)]
 #[repr(C)]
 #[type_name("rover.DisparityHeader.v1")]
 pub struct DisparityHeader {
@@ -183,7 +183,7 @@ pub struct FrameSwitchMsg {
 /// `mapper/to_comms` and `comms/to_mapper` user header. The slice payload is one
 /// `protocol`-encoded message (postcard, no framing): the mapper speaks the team protocol, the
 /// comms process only frames, schedules and carries it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Pod, Zeroable, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Pod, Zeroable, ZeroCopySend, Default)]
 #[repr(C)]
 #[type_name("rover.TeamHeader.v1")]
 pub struct TeamHeader {

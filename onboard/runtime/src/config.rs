@@ -1,1 +1,583 @@
-//! Rover configuration (being written).
+//! The rover's configuration: one TOML file (example: `onboard/runtime/config/rover.toml`),
+//! validated completely at start so that a bad value stops the rover on the ground with a message
+//! naming the key, not in the field.
+//!
+//! Every section and key except `robot.id` has a default (see the `Default` impls). Unknown keys
+//! are rejected (a misspelt key would otherwise silently fall back to its default).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use msgs::ProcessKind;
+use serde::{Deserialize, Serialize};
+
+use crate::task::TaskSpec;
+use crate::task::rt::RtRequest;
+
+/// The SGM core's maximum frame rate at 1024×508 (thesis §7.1).
+pub const FPGA_MAX_RATE_HZ: f64 = 14.6;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RoverConfig {
+    pub robot: RobotConfig,
+    #[serde(default)]
+    pub driver: DriverConfig,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub rates: RatesConfig,
+    #[serde(default)]
+    pub mapper: MapperConfig,
+    #[serde(default)]
+    pub link: LinkConfig,
+    #[serde(default)]
+    pub realtime: RealtimeConfig,
+    #[serde(default)]
+    pub recording: RecordingConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RobotConfig {
+    /// Required: two rovers with the same id would corrupt each other's maps.
+    pub id: u16,
+    #[serde(default)]
+    pub name: String,
+    /// iceoryx2 id of the robot's bus (`rover/{bus_id}/…`, files `iox2_r{bus_id}_`); default
+    /// `id`. Robots of several simulated teams on one machine (parallel tests) need distinct ids.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bus_id: Option<u16>,
+    /// Where the processes write their outputs and telemetry files; default `runs/rover{id}`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub output_dir: Option<PathBuf>,
+}
+
+impl RobotConfig {
+    pub fn bus_id(&self) -> u16 {
+        self.bus_id.unwrap_or(self.id)
+    }
+
+    pub fn output_dir(&self) -> PathBuf {
+        self.output_dir.clone().unwrap_or_else(|| PathBuf::from(format!("runs/rover{}", self.id)))
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DriverKind {
+    /// Sensors from the `sim` world.
+    Sim,
+    /// Sensors from a recording (`driver.replay_path`).
+    Replay,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Scenario {
+    Moon,
+    Mars,
+}
+
+impl Scenario {
+    /// The `sim::scenario::preset` name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Scenario::Moon => "moon",
+            Scenario::Mars => "mars",
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DriverConfig {
+    pub kind: DriverKind,
+    pub scenario: Scenario,
+    pub seed: u64,
+    /// Recording to replay; required with `kind = "replay"`.
+    pub replay_path: Option<PathBuf>,
+    /// Robots in the team (sim robot ids are `0..robots`).
+    pub robots: u16,
+    pub duration_s: f64,
+}
+
+impl Default for DriverConfig {
+    fn default() -> Self {
+        DriverConfig {
+            kind: DriverKind::Sim,
+            scenario: Scenario::Moon,
+            seed: 1,
+            replay_path: None,
+            robots: 2,
+            duration_s: 300.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CameraConfig {
+    /// Sensor resolution before downscaling.
+    pub width_px: u32,
+    pub height_px: u32,
+    /// 1, 2 or 4: the images the vision process matches are `width / downscale` wide.
+    pub downscale: u32,
+    /// Stereo frame rate; at most [`FPGA_MAX_RATE_HZ`].
+    pub rate_hz: f64,
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        CameraConfig { width_px: 1024, height_px: 508, downscale: 1, rate_hz: 10.0 }
+    }
+}
+
+impl CameraConfig {
+    /// Size of the images on the bus.
+    pub fn image_size_px(&self) -> (u32, u32) {
+        let d = self.downscale.max(1);
+        (self.width_px / d, self.height_px / d)
+    }
+}
+
+/// One fixed-rate task's rate and deadline. The deadline is either a fraction of the period or
+/// an absolute time; neither means the whole period.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TaskRate {
+    pub hz: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deadline_fraction: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deadline_ns: Option<u64>,
+}
+
+impl TaskRate {
+    fn at(hz: f64, deadline_fraction: f64) -> TaskRate {
+        TaskRate { hz, deadline_fraction: Some(deadline_fraction), deadline_ns: None }
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        (1e9 / self.hz).round() as u64
+    }
+
+    pub fn deadline_ns(&self) -> u64 {
+        match (self.deadline_ns, self.deadline_fraction) {
+            (Some(ns), _) => ns,
+            (None, Some(f)) => (self.period_ns() as f64 * f).round() as u64,
+            (None, None) => self.period_ns(),
+        }
+    }
+
+    /// The task spec (valid once the configuration validated).
+    pub fn spec(&self, name: &str) -> TaskSpec {
+        TaskSpec { name: name.into(), period_ns: self.period_ns(), deadline_ns: self.deadline_ns() }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RatesConfig {
+    /// Sensor rates of the driver.
+    pub imu_hz: f64,
+    pub wheel_hz: f64,
+    /// Fixed-rate tasks of the processes.
+    pub filter: TaskRate,
+    pub vision: TaskRate,
+    pub mapper: TaskRate,
+    pub comms: TaskRate,
+}
+
+impl Default for RatesConfig {
+    fn default() -> Self {
+        RatesConfig {
+            imu_hz: 200.0,
+            wheel_hz: 50.0,
+            // The filter must finish one IMU sample's work well inside a period.
+            filter: TaskRate::at(200.0, 0.5),
+            // Twice the camera rate so a frame waits at most half a frame period.
+            vision: TaskRate::at(20.0, 1.0),
+            mapper: TaskRate::at(10.0, 1.0),
+            comms: TaskRate::at(50.0, 1.0),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MapperConfig {
+    /// A new submap starts after this travelled distance (thesis: 3.5 m early, 7 m later).
+    pub submap_max_distance_m: f64,
+    /// ... or when the position sigma exceeds this (thesis: 0.1–0.2 m).
+    pub max_position_sigma_m: f64,
+    /// Point cloud voxel (thesis: 5 cm).
+    pub point_voxel_m: f64,
+    /// Occupancy octree voxel (thesis: 10 cm).
+    pub octree_voxel_m: f64,
+}
+
+impl Default for MapperConfig {
+    fn default() -> Self {
+        // `mapper::submap::SubmapPolicy::default()`: the LRU multi-robot experiments.
+        MapperConfig { submap_max_distance_m: 7.0, max_position_sigma_m: 0.2, point_voxel_m: 0.05, octree_voxel_m: 0.1 }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LinkKind {
+    Udp,
+    Serial,
+    None,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PeerConfig {
+    pub robot_id: u16,
+    /// `ip:port` for UDP links.
+    pub address: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LinkConfig {
+    pub kind: LinkKind,
+    /// UDP: local `ip:port` to bind.
+    pub bind: String,
+    pub peers: Vec<PeerConfig>,
+    /// Serial: device path and baud rate.
+    pub serial_device: Option<String>,
+    pub serial_baud: u32,
+    /// The link's capacity the comms scheduler keeps under (a radio's, not the Ethernet's).
+    pub bandwidth_bytes_per_s: u64,
+    /// UDP address of the ground station's telemetry feed; none sends no feed.
+    pub ground_feed: Option<String>,
+}
+
+impl Default for LinkConfig {
+    fn default() -> Self {
+        LinkConfig {
+            kind: LinkKind::Udp,
+            bind: "0.0.0.0:47000".into(),
+            peers: Vec::new(),
+            serial_device: None,
+            serial_baud: 57_600,
+            bandwidth_bytes_per_s: 12_500,
+            ground_feed: None,
+        }
+    }
+}
+
+impl LinkConfig {
+    /// The bind address (valid once the configuration validated).
+    pub fn bind_addr(&self) -> Option<SocketAddr> {
+        self.bind.parse().ok()
+    }
+
+    pub fn ground_feed_addr(&self) -> Option<SocketAddr> {
+        self.ground_feed.as_deref().and_then(|a| a.parse().ok())
+    }
+
+    /// UDP peers with parsed addresses (valid once the configuration validated).
+    pub fn peer_addrs(&self) -> Vec<(u16, SocketAddr)> {
+        self.peers.iter().filter_map(|p| Some((p.robot_id, p.address.parse().ok()?))).collect()
+    }
+}
+
+/// Real-time settings of one process.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ProcessRealtime {
+    /// SCHED_FIFO priority 1..=99 of the process's task thread; none keeps normal scheduling.
+    pub fifo_priority: Option<u8>,
+    pub cpu: Option<usize>,
+}
+
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RealtimeConfig {
+    pub lock_memory: bool,
+    pub driver: ProcessRealtime,
+    pub vision: ProcessRealtime,
+    pub filter: ProcessRealtime,
+    pub mapper: ProcessRealtime,
+    pub comms: ProcessRealtime,
+}
+
+impl RealtimeConfig {
+    pub fn process(&self, process: ProcessKind) -> ProcessRealtime {
+        match process {
+            ProcessKind::Driver => self.driver,
+            ProcessKind::Vision => self.vision,
+            ProcessKind::Filter => self.filter,
+            ProcessKind::Mapper => self.mapper,
+            ProcessKind::Comms => self.comms,
+            ProcessKind::Supervisor => ProcessRealtime::default(),
+        }
+    }
+
+    /// What [`crate::task::rt::apply`] should do in `process`.
+    pub fn request(&self, process: ProcessKind) -> RtRequest {
+        let p = self.process(process);
+        RtRequest { fifo_priority: p.fifo_priority, lock_memory: self.lock_memory, cpu: p.cpu }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecordingConfig {
+    pub enabled: bool,
+    pub directory: PathBuf,
+}
+
+impl Default for RecordingConfig {
+    fn default() -> Self {
+        RecordingConfig { enabled: false, directory: PathBuf::from("runs/record") }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("reading {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    /// TOML syntax, a wrong type, an unknown or missing key.
+    #[error("{key} (line {line}): {problem}")]
+    Syntax { key: String, line: usize, problem: String },
+    /// A well-formed value that is out of range or inconsistent with another.
+    #[error("{key}: {problem}")]
+    Invalid { key: String, problem: String },
+}
+
+impl Default for RoverConfig {
+    fn default() -> Self {
+        RoverConfig {
+            robot: RobotConfig { id: 0, name: String::new(), bus_id: None, output_dir: None },
+            driver: DriverConfig::default(),
+            camera: CameraConfig::default(),
+            rates: RatesConfig::default(),
+            mapper: MapperConfig::default(),
+            link: LinkConfig::default(),
+            realtime: RealtimeConfig::default(),
+            recording: RecordingConfig::default(),
+        }
+    }
+}
+
+impl RoverConfig {
+    pub fn from_toml_str(text: &str) -> Result<RoverConfig, ConfigError> {
+        let config: RoverConfig = toml::from_str(text).map_err(|e| syntax_error(text, &e))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    pub fn load(path: &Path) -> Result<RoverConfig, ConfigError> {
+        let text =
+            std::fs::read_to_string(path).map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        RoverConfig::from_toml_str(&text)
+    }
+
+    /// The configuration as TOML (every default spelt out), e.g. to store next to a run.
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Checks ranges and consistency between values; the first problem is returned.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let d = &self.driver;
+        check(d.robots >= 1 && d.robots <= 16, "driver.robots", || format!("{} robots: expected 1..=16", d.robots))?;
+        check(d.duration_s.is_finite() && d.duration_s > 0.0 && d.duration_s <= 86_400.0, "driver.duration_s", || {
+            format!("{} s: expected more than 0 and at most a day", d.duration_s)
+        })?;
+        match d.kind {
+            DriverKind::Sim => check(self.robot.id < d.robots, "robot.id", || {
+                format!("{} is not a robot of the simulated team (ids 0..{})", self.robot.id, d.robots)
+            })?,
+            DriverKind::Replay => check(d.replay_path.is_some(), "driver.replay_path", || {
+                "required with driver.kind = \"replay\"".into()
+            })?,
+        }
+
+        let c = &self.camera;
+        check(matches!(c.downscale, 1 | 2 | 4), "camera.downscale", || format!("{}: expected 1, 2 or 4", c.downscale))?;
+        for (key, px) in [("camera.width_px", c.width_px), ("camera.height_px", c.height_px)] {
+            check((16..=8192).contains(&px), key, || format!("{px} px: expected 16..=8192"))?;
+            check(px.is_multiple_of(c.downscale), key, || {
+                format!("{px} px is not divisible by camera.downscale {}", c.downscale)
+            })?;
+        }
+        check(c.rate_hz.is_finite() && c.rate_hz > 0.0, "camera.rate_hz", || {
+            format!("{} Hz: must be positive", c.rate_hz)
+        })?;
+        check(c.rate_hz <= FPGA_MAX_RATE_HZ + 1e-9, "camera.rate_hz", || {
+            format!("{} Hz is above the FPGA's maximum of {FPGA_MAX_RATE_HZ} Hz", c.rate_hz)
+        })?;
+
+        let r = &self.rates;
+        for (key, hz) in [("rates.imu_hz", r.imu_hz), ("rates.wheel_hz", r.wheel_hz)] {
+            check(hz.is_finite() && hz > 0.0 && hz <= 2000.0, key, || {
+                format!("{hz} Hz: expected more than 0, at most 2000")
+            })?;
+        }
+        for (name, task) in [("filter", &r.filter), ("vision", &r.vision), ("mapper", &r.mapper), ("comms", &r.comms)] {
+            validate_task_rate(name, task)?;
+        }
+        check(r.vision.hz >= c.rate_hz - 1e-9, "rates.vision.hz", || {
+            format!("{} Hz is below camera.rate_hz {} Hz: vision would fall behind the camera", r.vision.hz, c.rate_hz)
+        })?;
+        if d.kind == DriverKind::Sim {
+            // The simulator fires every sensor on the IMU's sample grid.
+            for (key, hz) in [("camera.rate_hz", c.rate_hz), ("rates.wheel_hz", r.wheel_hz)] {
+                check(is_integer_ratio(r.imu_hz, hz), key, || {
+                    format!(
+                        "{hz} Hz does not divide rates.imu_hz {} Hz (the simulator needs whole IMU periods)",
+                        r.imu_hz
+                    )
+                })?;
+            }
+        }
+
+        let m = &self.mapper;
+        let in_range = |v: f64, lo: f64, hi: f64| v.is_finite() && v >= lo && v <= hi;
+        check(in_range(m.submap_max_distance_m, 0.5, 100.0), "mapper.submap_max_distance_m", || {
+            format!("{} m: expected 0.5..=100 (thesis: 3.5 or 7)", m.submap_max_distance_m)
+        })?;
+        check(in_range(m.max_position_sigma_m, 0.01, 2.0), "mapper.max_position_sigma_m", || {
+            format!("{} m: expected 0.01..=2 (thesis: 0.1–0.2)", m.max_position_sigma_m)
+        })?;
+        for (key, v) in [("mapper.point_voxel_m", m.point_voxel_m), ("mapper.octree_voxel_m", m.octree_voxel_m)] {
+            check(in_range(v, 0.005, 2.0), key, || format!("{v} m: expected 0.005..=2"))?;
+        }
+
+        self.validate_link()?;
+
+        for (name, p) in [
+            ("driver", self.realtime.driver),
+            ("vision", self.realtime.vision),
+            ("filter", self.realtime.filter),
+            ("mapper", self.realtime.mapper),
+            ("comms", self.realtime.comms),
+        ] {
+            if let Some(priority) = p.fifo_priority {
+                check((1..=99).contains(&priority), &format!("realtime.{name}.fifo_priority"), || {
+                    format!("{priority}: SCHED_FIFO priorities are 1..=99")
+                })?;
+            }
+            if let Some(cpu) = p.cpu {
+                check(cpu < 1024, &format!("realtime.{name}.cpu"), || {
+                    format!("{cpu}: expected a CPU index below 1024")
+                })?;
+            }
+        }
+
+        check(
+            !self.recording.enabled || !self.recording.directory.as_os_str().is_empty(),
+            "recording.directory",
+            || "must not be empty when recording.enabled".into(),
+        )?;
+        Ok(())
+    }
+
+    fn validate_link(&self) -> Result<(), ConfigError> {
+        let l = &self.link;
+        check(
+            l.bandwidth_bytes_per_s > 0 && l.bandwidth_bytes_per_s <= 1_000_000_000,
+            "link.bandwidth_bytes_per_s",
+            || format!("{}: expected 1..=1e9 bytes/s", l.bandwidth_bytes_per_s),
+        )?;
+        let mut seen = std::collections::BTreeSet::new();
+        for (i, peer) in l.peers.iter().enumerate() {
+            let key = format!("link.peers[{i}].robot_id");
+            check(peer.robot_id != self.robot.id, &key, || format!("{} is this robot's own id", peer.robot_id))?;
+            check(seen.insert(peer.robot_id), &key, || format!("robot {} is listed twice", peer.robot_id))?;
+        }
+        if let Some(feed) = &l.ground_feed {
+            check(feed.parse::<SocketAddr>().is_ok(), "link.ground_feed", || {
+                format!("`{feed}` is not an `ip:port` address")
+            })?;
+        }
+        match l.kind {
+            LinkKind::Udp => {
+                check(l.bind.parse::<SocketAddr>().is_ok(), "link.bind", || {
+                    format!("`{}` is not an `ip:port` address (e.g. 0.0.0.0:47000)", l.bind)
+                })?;
+                for (i, peer) in l.peers.iter().enumerate() {
+                    check(peer.address.parse::<SocketAddr>().is_ok(), &format!("link.peers[{i}].address"), || {
+                        format!("`{}` is not an `ip:port` address", peer.address)
+                    })?;
+                }
+            }
+            LinkKind::Serial => {
+                check(l.serial_device.as_deref().is_some_and(|d| !d.is_empty()), "link.serial_device", || {
+                    "required with link.kind = \"serial\"".into()
+                })?;
+                check((300..=4_000_000).contains(&l.serial_baud), "link.serial_baud", || {
+                    format!("{}: expected 300..=4000000", l.serial_baud)
+                })?;
+            }
+            LinkKind::None => {}
+        }
+        Ok(())
+    }
+}
+
+fn validate_task_rate(name: &str, task: &TaskRate) -> Result<(), ConfigError> {
+    check(task.hz.is_finite() && task.hz > 0.0 && task.hz <= 1000.0, &format!("rates.{name}.hz"), || {
+        format!("{} Hz: expected more than 0, at most 1000", task.hz)
+    })?;
+    check(task.deadline_fraction.is_none() || task.deadline_ns.is_none(), &format!("rates.{name}"), || {
+        "give deadline_fraction or deadline_ns, not both".into()
+    })?;
+    if let Some(f) = task.deadline_fraction {
+        check(f.is_finite() && f > 0.0 && f <= 1.0, &format!("rates.{name}.deadline_fraction"), || {
+            format!("{f}: expected more than 0, at most 1 (the deadline lies within the period)")
+        })?;
+    }
+    if let Some(ns) = task.deadline_ns {
+        check(ns > 0 && ns <= task.period_ns(), &format!("rates.{name}.deadline_ns"), || {
+            format!("{ns} ns: expected 1..={} ns (the period)", task.period_ns())
+        })?;
+    }
+    Ok(())
+}
+
+fn is_integer_ratio(fast_hz: f64, slow_hz: f64) -> bool {
+    let ratio = fast_hz / slow_hz;
+    ratio >= 1.0 - 1e-9 && (ratio - ratio.round()).abs() <= 1e-6 * ratio
+}
+
+fn check(ok: bool, key: &str, problem: impl FnOnce() -> String) -> Result<(), ConfigError> {
+    if ok { Ok(()) } else { Err(ConfigError::Invalid { key: key.into(), problem: problem() }) }
+}
+
+/// Turns a toml/serde error into one naming the dotted key at the error's position: toml's own
+/// message names the field but not its table.
+fn syntax_error(text: &str, error: &toml::de::Error) -> ConfigError {
+    let problem = error.message().trim().to_string();
+    let Some(offset) = error.span().map(|s| s.start.min(text.len())) else {
+        return ConfigError::Syntax { key: "(document)".into(), line: 1, problem };
+    };
+    let before = text.get(..offset).unwrap_or("");
+    let line = before.matches('\n').count() + 1;
+    let line_text = text.lines().nth(line - 1).unwrap_or("").trim();
+    let above = &before[..before.rfind('\n').map_or(0, |i| i + 1)];
+    let table = above
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('['))
+        .map(|l| l.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string());
+    let key = if let Some(header) = line_text.strip_prefix('[') {
+        header.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string()
+    } else if let Some((k, _)) = line_text.split_once('=') {
+        let k = k.trim().trim_matches('"');
+        match table {
+            Some(t) if !t.is_empty() => format!("{t}.{k}"),
+            _ => k.to_string(),
+        }
+    } else {
+        table.unwrap_or_else(|| "(document)".into())
+    };
+    ConfigError::Syntax { key, line, problem }
+}

@@ -1,1 +1,170 @@
-//! Lockstep runner (being written).
+//! The lockstep runner's in-process bus: nodes of one robot exchange the same [`Message`]s as
+//! over iceoryx2, delivered in publish order on simulated time, deterministically.
+//!
+//! A published message is copied once into the robot's queue ([`OwnedMessage`], the recording's
+//! owned form; image buffers
+//! come from a pool and go back to it after delivery, so a warmed-up run does not allocate per
+//! frame) and then handed, borrowed, to every node that subscribes to its topic, in the order
+//! the nodes were given. Messages a node publishes while handling one are queued behind it:
+//! delivery is breadth-first, as a bus with one message in flight at a time.
+
+use std::collections::VecDeque;
+use std::time::Instant;
+
+use msgs::DisparityPixel;
+
+use crate::nodes::{Message, Node, NodeError, Outbox, Topic};
+pub use crate::record::OwnedMessage;
+
+/// Recycled payload buffers.
+#[derive(Debug, Default)]
+struct Pool {
+    bytes: Vec<Vec<u8>>,
+    pixels: Vec<Vec<DisparityPixel>>,
+}
+
+impl Pool {
+    fn bytes(&mut self, data: &[u8]) -> Vec<u8> {
+        let mut v = self.bytes.pop().unwrap_or_default();
+        v.clear();
+        v.extend_from_slice(data);
+        v
+    }
+
+    fn pixels(&mut self, data: &[DisparityPixel]) -> Vec<DisparityPixel> {
+        let mut v = self.pixels.pop().unwrap_or_default();
+        v.clear();
+        v.extend_from_slice(data);
+        v
+    }
+
+    fn recycle(&mut self, message: OwnedMessage) {
+        // A few buffers per kind cover a robot's in-flight images; more would only hold memory.
+        const KEEP: usize = 8;
+        match message {
+            OwnedMessage::Stereo(_, v) | OwnedMessage::ToComms(_, v) | OwnedMessage::ToMapper(_, v)
+                if self.bytes.len() < KEEP =>
+            {
+                self.bytes.push(v);
+            }
+            OwnedMessage::Disparity(_, v) if self.pixels.len() < KEEP => self.pixels.push(v),
+            _ => {}
+        }
+    }
+
+    fn own(&mut self, message: &Message<'_>) -> OwnedMessage {
+        match *message {
+            Message::Imu(m) => OwnedMessage::Imu(*m),
+            Message::WheelOdom(m) => OwnedMessage::WheelOdom(*m),
+            Message::Stereo(h, d) => OwnedMessage::Stereo(*h, self.bytes(d)),
+            Message::Disparity(h, d) => OwnedMessage::Disparity(*h, self.pixels(d)),
+            Message::VoDelta(m) => OwnedMessage::VoDelta(*m),
+            Message::Marker(m) => OwnedMessage::Marker(*m),
+            Message::FilterState(m) => OwnedMessage::FilterState(*m),
+            Message::FrameSwitchRequest(m) => OwnedMessage::FrameSwitchRequest(*m),
+            Message::FrameSwitch(m) => OwnedMessage::FrameSwitch(*m),
+            Message::ToComms(h, d) => OwnedMessage::ToComms(*h, self.bytes(d)),
+            Message::ToMapper(h, d) => OwnedMessage::ToMapper(*h, self.bytes(d)),
+            Message::TaskStats(m) => OwnedMessage::TaskStats(*m),
+        }
+    }
+}
+
+/// The message queue of one robot; it is the [`Outbox`] of every node of that robot.
+#[derive(Debug, Default)]
+pub struct LocalBus {
+    queue: VecDeque<OwnedMessage>,
+    pool: Pool,
+    /// Messages published per topic (index: `Topic::code()`).
+    published: [u64; 16],
+    /// Observer of every delivered message (e.g. a recorder or the runner's own taps).
+    tap: Vec<Topic>,
+    tapped: Vec<OwnedMessage>,
+}
+
+impl Outbox for LocalBus {
+    fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
+        let owned = self.pool.own(&message);
+        if let Some(count) = self.published.get_mut(usize::from(message.topic().code())) {
+            *count += 1;
+        }
+        self.queue.push_back(owned);
+        Ok(())
+    }
+}
+
+/// Time spent in each node's handlers (the lockstep runner's "CPU per process").
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct NodeTimes {
+    pub seconds: Vec<f64>,
+}
+
+impl LocalBus {
+    pub fn new() -> LocalBus {
+        LocalBus::default()
+    }
+
+    /// Keep a copy of every delivered message of these topics ([`LocalBus::take_tapped`]).
+    pub fn tap(&mut self, topics: &[Topic]) {
+        self.tap = topics.to_vec();
+    }
+
+    /// The tapped messages since the last call.
+    pub fn take_tapped(&mut self) -> Vec<OwnedMessage> {
+        std::mem::take(&mut self.tapped)
+    }
+
+    pub fn published(&self, topic: Topic) -> u64 {
+        self.published.get(usize::from(topic.code())).copied().unwrap_or(0)
+    }
+
+    pub fn is_idle(&self) -> bool {
+        self.queue.is_empty()
+    }
+
+    /// Delivers every queued message (and those published while delivering) to the subscribed
+    /// nodes. `times.seconds[i]` accumulates node `i`'s handler time.
+    pub fn deliver(&mut self, nodes: &mut [&mut dyn Node], times: &mut NodeTimes) -> Result<(), NodeError> {
+        times.seconds.resize(nodes.len(), 0.0);
+        while let Some(message) = self.queue.pop_front() {
+            let view = message.as_message();
+            let topic = view.topic();
+            for (i, node) in nodes.iter_mut().enumerate() {
+                if node.subscriptions().contains(&topic) {
+                    let start = Instant::now();
+                    let result = node.on_message(view, self);
+                    times.seconds[i] += start.elapsed().as_secs_f64();
+                    result?;
+                }
+            }
+            if self.tap.contains(&topic) {
+                self.tapped.push(message);
+            } else {
+                self.pool.recycle(message);
+            }
+        }
+        Ok(())
+    }
+
+    /// Calls `on_tick(now_ns)` of the nodes selected by `due` and delivers what they publish.
+    pub fn tick(
+        &mut self,
+        now_ns: u64,
+        nodes: &mut [&mut dyn Node],
+        due: &[bool],
+        times: &mut NodeTimes,
+    ) -> Result<(), NodeError> {
+        times.seconds.resize(nodes.len(), 0.0);
+        for i in 0..nodes.len() {
+            if !due.get(i).copied().unwrap_or(false) {
+                continue;
+            }
+            let start = Instant::now();
+            let result = nodes[i].on_tick(now_ns, self);
+            times.seconds[i] += start.elapsed().as_secs_f64();
+            result?;
+            self.deliver(nodes, times)?;
+        }
+        Ok(())
+    }
+}

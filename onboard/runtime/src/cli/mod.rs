@@ -1,6 +1,9 @@
 //! Command-line front ends of the subcommands.
 
+pub mod mission;
+pub mod node;
 pub mod posegraph;
+pub mod run;
 pub mod vio;
 
 use std::ffi::OsString;

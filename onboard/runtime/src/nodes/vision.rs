@@ -1,1 +1,483 @@
-//! vision node (being written).
+//! The vision process as a bus node: rectification, SGM, obstacle labels and keyframe stereo
+//! odometry on each stereo pair (the vision half of [`crate::vio::VioPipeline`]).
+//!
+//! On a pair: rectify when the calibration is raw; SGM disparity (`fpga_model`'s fast matcher)
+//! always, because the mapper needs the dense map; depth and obstacle labels with the camera pose
+//! from the latest filter state (the classifier needs the camera relative to gravity); then one
+//! [`Message::Disparity`] with disparity and labels per pixel.
+//!
+//! The odometry's prior is the filter's keyframe→current motion: the filter poses at the two
+//! capture stamps, chained across [`Message::FrameSwitch`] into one frame (a small ring of recent
+//! filter states). The state of a capture usually arrives just after the image (the filter
+//! publishes it after the IMU sample of that stamp), so the odometry of a pair waits for the first
+//! filter state at or after its capture, for the next pair, or for
+//! [`VisionNodeOptions::prior_wait_ns`] of sensor time, whichever comes first; without the state
+//! it runs without a prior (counted). The odometry stays idle until the filter runs: its first
+//! keyframe needs a filter clone to be measured against. Each result is one
+//! [`Message::VoDelta`] with the odometry's own covariance (the filter scales it).
+//!
+//! Bad payloads (slice length not matching the header, another geometry than the calibration,
+//! non-finite poses) are counted and skipped.
+
+use std::collections::VecDeque;
+
+use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use hal::sensor::{StereoCalibration, StereoFrame};
+use msgs::{DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, Pose, StereoHeader, VoDeltaMsg};
+use nalgebra::Isometry3;
+use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
+use vision::{DepthImage, Rectifier, StereoGeometry, StereoOdometry, VoConfig, VoOutput};
+
+use super::{Message, Node, NodeError, Outbox, Topic};
+use crate::vio::VioOptions;
+
+const NAME: &str = "vision";
+/// Filter states kept for the prior (320 ms at 200 Hz: the state of a capture that arrived
+/// before its image).
+const STATES_KEPT: usize = 64;
+/// Filter poses at capture stamps kept for the keyframe end of the prior (as the pipeline: more
+/// than 5 keyframes' worth).
+const CAPTURE_POSES_KEPT: usize = 64;
+const INVALID_PIXEL: DisparityPixel = DisparityPixel { disparity_q4: DisparityPixel::INVALID, labels: 0, reserved: 0 };
+
+/// The vision node's configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VisionNodeOptions {
+    pub vo: VoConfig,
+    /// Depth for the odometry from the SGM map instead of its sparse matching.
+    pub sgm_depth_for_vo: bool,
+    pub sgm: SgmConfig,
+    pub sgm_threads: usize,
+    /// Seed the odometry with the filter's keyframe→current motion.
+    pub vo_prior: bool,
+    pub obstacles: ObstacleConfig,
+    /// Longest wait (sensor time after the capture) for the filter state of a capture.
+    pub prior_wait_ns: u64,
+}
+
+impl VisionNodeOptions {
+    pub fn from_vio(options: &VioOptions) -> Self {
+        VisionNodeOptions {
+            vo: options.vo.clone(),
+            sgm_depth_for_vo: options.sgm,
+            sgm: SgmConfig::default(),
+            sgm_threads: options.sgm_threads.max(1),
+            vo_prior: options.vo_prior,
+            obstacles: ObstacleConfig::default(),
+            prior_wait_ns: 50_000_000,
+        }
+    }
+}
+
+/// Counters for the mission report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct VisionNodeSummary {
+    pub frames: u64,
+    /// Stereo messages whose slice or geometry did not match (skipped).
+    pub bad_stereo: u64,
+    /// Filter states or frame switches with non-finite poses (skipped).
+    pub bad_filter_states: u64,
+    pub disparity_published: u64,
+    /// Pairs classified without a filter attitude (labels left empty).
+    pub frames_without_attitude: u64,
+    /// Pairs not given to the odometry because the filter was not running yet.
+    pub frames_before_init: u64,
+    pub vo_frames: u64,
+    pub keyframes: u64,
+    pub vo_resets: u64,
+    pub vo_deltas: u64,
+    pub priors_used: u64,
+    /// The filter state of the capture did not arrive in time.
+    pub prior_state_missing: u64,
+    /// The keyframe's capture pose was not known (e.g. after a missed frame switch).
+    pub prior_keyframe_missing: u64,
+    /// Frame switches that did not continue the chained frame (a lost message).
+    pub frame_switches_missed: u64,
+    /// Rectification, SGM or odometry errors on one pair (the pair is skipped).
+    pub errors: u64,
+}
+
+/// The latest filter state, for the obstacle attitude and the filter status.
+#[derive(Debug, Clone, Copy)]
+struct LatestState {
+    stamp_ns: u64,
+    t_local_body: Isometry3<f64>,
+    running: bool,
+}
+
+/// The vision process's node (see the module documentation).
+#[derive(Debug)]
+pub struct VisionNode {
+    options: VisionNodeOptions,
+    raw_calibration: StereoCalibration,
+    calibration: StereoCalibration,
+    rectifier: Option<Rectifier>,
+    raw: StereoFrame,
+    /// The rectified pair; holds the pair whose odometry waits for its filter state.
+    frame: StereoFrame,
+    odometry: StereoOdometry,
+    matcher: fpga_model::fast::Matcher,
+    sgm_left: GrayImage,
+    sgm_right: GrayImage,
+    disparity: DisparityImage,
+    geometry: StereoGeometry,
+    depth: DepthImage,
+    classifier: ObstacleClassifier,
+    labels: PixelLabels,
+    pixels: Vec<DisparityPixel>,
+    /// Capture stamp of the pair in `frame` whose odometry has not run yet.
+    pending_capture_ns: Option<u64>,
+    latest: Option<LatestState>,
+    /// Frame id of the chain, and the current local frame in the chain's first frame.
+    frame_id: Option<u32>,
+    t_first_local: Isometry3<f64>,
+    /// Recent running filter states `(stamp, t_first_body)`.
+    states: VecDeque<(u64, Isometry3<f64>)>,
+    capture_poses: VecDeque<(u64, Isometry3<f64>)>,
+    keyframe_ns: Option<u64>,
+    summary: VisionNodeSummary,
+}
+
+fn failed(reason: String) -> NodeError {
+    NodeError::Failed { node: NAME, reason }
+}
+
+/// The transform of a received pose, validated as [`Pose::to_isometry`] does, but keeping the
+/// sender's quaternion bits when its norm is 1 to rounding: renormalizing it anyway changes the
+/// last bits, and the odometry's discrete decisions (keyframes, inlier sets) can flip on such a
+/// difference, so the nodes would not reproduce [`crate::vio::VioPipeline`] exactly.
+pub(crate) fn exact_isometry(pose: &Pose) -> Option<Isometry3<f64>> {
+    let normalized = pose.to_isometry()?;
+    let [w, x, y, z] = pose.rotation_wxyz;
+    let q = nalgebra::Quaternion::new(w, x, y, z);
+    if (q.norm() - 1.0).abs() > 4.0 * f64::EPSILON {
+        return Some(normalized);
+    }
+    Some(Isometry3::from_parts(normalized.translation, nalgebra::UnitQuaternion::new_unchecked(q)))
+}
+
+fn push_bounded(ring: &mut VecDeque<(u64, Isometry3<f64>)>, capacity: usize, entry: (u64, Isometry3<f64>)) {
+    if let Some(last) = ring.back_mut()
+        && last.0 == entry.0
+    {
+        // A later state of the same stamp (an update after the sample): the newest counts.
+        *last = entry;
+        return;
+    }
+    if ring.len() == capacity {
+        ring.pop_front();
+    }
+    ring.push_back(entry);
+}
+
+impl VisionNode {
+    /// A node for a stereo head with the (raw or rectified) `calibration`.
+    pub fn new(calibration: &StereoCalibration, options: VisionNodeOptions) -> Result<Self, NodeError> {
+        let rectifier = if calibration.rectified {
+            None
+        } else {
+            Some(Rectifier::new(calibration).map_err(|e| failed(e.to_string()))?)
+        };
+        let rectified = rectifier.as_ref().map_or(*calibration, Rectifier::rectified_calibration);
+        let odometry = StereoOdometry::new(options.vo.clone(), &rectified).map_err(|e| failed(e.to_string()))?;
+        let (width, height) = (rectified.left.width_px as usize, rectified.left.height_px as usize);
+        let matcher = fpga_model::fast::Matcher::new(options.sgm, width, height, options.sgm_threads.max(1))
+            .map_err(|e| failed(format!("SGM: {e}")))?;
+        let classifier = ObstacleClassifier::new(options.obstacles).map_err(|e| failed(e.to_string()))?;
+        let image = || GrayImage { width, height, pixels: vec![0; width * height] };
+        Ok(VisionNode {
+            raw_calibration: *calibration,
+            calibration: rectified,
+            rectifier,
+            raw: StereoFrame::default(),
+            frame: StereoFrame::default(),
+            odometry,
+            matcher,
+            sgm_left: image(),
+            sgm_right: image(),
+            disparity: DisparityImage { width, height, data: vec![DisparityPixel::INVALID; width * height] },
+            geometry: StereoGeometry::from_calibration(&rectified),
+            depth: DepthImage::new(width, height),
+            classifier,
+            labels: PixelLabels::default(),
+            pixels: vec![INVALID_PIXEL; width * height],
+            pending_capture_ns: None,
+            latest: None,
+            frame_id: None,
+            t_first_local: Isometry3::identity(),
+            states: VecDeque::with_capacity(STATES_KEPT),
+            capture_poses: VecDeque::with_capacity(CAPTURE_POSES_KEPT),
+            keyframe_ns: None,
+            summary: VisionNodeSummary::default(),
+            options,
+        })
+    }
+
+    pub fn summary(&self) -> VisionNodeSummary {
+        self.summary
+    }
+
+    /// The rectified calibration the odometry and the disparity maps use.
+    pub fn rectified_calibration(&self) -> &StereoCalibration {
+        &self.calibration
+    }
+
+    /// Per-pixel labels of the last classified pair.
+    pub fn labels(&self) -> &PixelLabels {
+        &self.labels
+    }
+
+    /// Runs the odometry of a pair still waiting for its filter state (end of the data).
+    pub fn flush(&mut self, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        self.run_pending_odometry(out)
+    }
+
+    fn on_stereo(&mut self, header: &StereoHeader, bytes: &[u8], out: &mut dyn Outbox) -> Result<(), NodeError> {
+        let raw = &self.raw_calibration;
+        let (width, height) = (header.width_px as usize, header.height_px as usize);
+        let n = width * height;
+        if header.width_px != raw.left.width_px
+            || header.height_px != raw.left.height_px
+            || bytes.len() != 2 * n
+            || !(header.pan_rad.is_finite() && header.tilt_rad.is_finite())
+        {
+            self.summary.bad_stereo += 1;
+            return Ok(());
+        }
+        // The buffers are about to be overwritten: the previous pair waited long enough.
+        self.run_pending_odometry(out)?;
+        self.summary.frames += 1;
+        let target = if self.rectifier.is_some() { &mut self.raw } else { &mut self.frame };
+        target.resize(header.width_px, header.height_px);
+        target.left.copy_from_slice(&bytes[..n]);
+        target.right.copy_from_slice(&bytes[n..]);
+        target.stamp_ns = header.stamp_ns;
+        target.sequence = header.sequence;
+        target.pan_rad = header.pan_rad;
+        target.tilt_rad = header.tilt_rad;
+        if let Some(rectifier) = &self.rectifier
+            && rectifier.rectify(&self.raw, &mut self.frame).is_err()
+        {
+            self.summary.errors += 1;
+            return Ok(());
+        }
+        if !self.match_and_classify() {
+            self.summary.errors += 1;
+            return Ok(());
+        }
+        let disparity_header = DisparityHeader {
+            stamp_ns: header.stamp_ns,
+            sequence: header.sequence,
+            pan_rad: header.pan_rad,
+            tilt_rad: header.tilt_rad,
+            width_px: self.disparity.width as u32,
+            height_px: self.disparity.height as u32,
+        };
+        out.publish(Message::Disparity(&disparity_header, &self.pixels))?;
+        self.summary.disparity_published += 1;
+
+        self.pending_capture_ns = Some(header.stamp_ns);
+        let state_known = self.states.iter().any(|(s, _)| *s == header.stamp_ns);
+        let state_passed = self.latest.is_some_and(|l| l.stamp_ns > header.stamp_ns);
+        if state_known || state_passed {
+            self.run_pending_odometry(out)?;
+        }
+        Ok(())
+    }
+
+    /// SGM on the rectified pair, depth, labels, and the disparity message's pixels. `false` on
+    /// a geometry the matcher is not set up for.
+    fn match_and_classify(&mut self) -> bool {
+        let frame = &self.frame;
+        if frame.left.len() != self.sgm_left.pixels.len() || frame.right.len() != self.sgm_right.pixels.len() {
+            return false;
+        }
+        self.sgm_left.pixels.copy_from_slice(&frame.left);
+        self.sgm_right.pixels.copy_from_slice(&frame.right);
+        if self.matcher.compute_into(&self.sgm_left, &self.sgm_right, &mut self.disparity).is_err() {
+            return false;
+        }
+        self.depth.fill_from_disparity(&self.disparity, &self.geometry);
+        match self.latest.filter(|l| l.running) {
+            Some(latest) => {
+                let t_local_cam = latest.t_local_body * self.calibration.t_body_left(frame.pan_rad, frame.tilt_rad);
+                self.classifier.classify(&self.depth, &self.geometry, &t_local_cam, &mut self.labels);
+            }
+            None => {
+                self.summary.frames_without_attitude += 1;
+                self.labels.width = self.disparity.width;
+                self.labels.height = self.disparity.height;
+                self.labels.flags.clear();
+                self.labels.flags.resize(self.disparity.data.len(), 0);
+            }
+        }
+        self.pixels.resize(self.disparity.data.len(), INVALID_PIXEL);
+        for ((pixel, &d), &flags) in self.pixels.iter_mut().zip(&self.disparity.data).zip(&self.labels.flags) {
+            *pixel = DisparityPixel { disparity_q4: d, labels: flags, reserved: 0 };
+        }
+        true
+    }
+
+    fn on_filter_state(&mut self, state: &FilterStateMsg, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        let Some(t_local_body) = exact_isometry(&state.t_local_body) else {
+            self.summary.bad_filter_states += 1;
+            return Ok(());
+        };
+        match self.frame_id {
+            Some(current) if state.frame_id < current => return Ok(()),
+            Some(current) if state.frame_id > current => {
+                self.summary.frame_switches_missed += 1;
+                self.restart_chain(state.frame_id);
+            }
+            Some(_) => {}
+            None => self.frame_id = Some(state.frame_id),
+        }
+        let running = state.status == FilterStateMsg::RUNNING;
+        self.latest = Some(LatestState { stamp_ns: state.stamp_ns, t_local_body, running });
+        if running {
+            push_bounded(&mut self.states, STATES_KEPT, (state.stamp_ns, self.t_first_local * t_local_body));
+        }
+        if self.pending_capture_ns.is_some_and(|capture| state.stamp_ns >= capture) {
+            self.run_pending_odometry(out)?;
+        }
+        Ok(())
+    }
+
+    fn on_frame_switch(&mut self, switch: &FrameSwitchMsg) {
+        let Some(t_old_new) = exact_isometry(&switch.t_old_new) else {
+            self.summary.bad_filter_states += 1;
+            return;
+        };
+        match self.frame_id {
+            Some(current) if current == switch.old_frame_id => {
+                self.t_first_local *= t_old_new;
+                self.frame_id = Some(switch.new_frame_id);
+            }
+            Some(current) if current >= switch.new_frame_id => {}
+            _ => {
+                self.summary.frame_switches_missed += 1;
+                self.restart_chain(switch.new_frame_id);
+            }
+        }
+    }
+
+    /// Poses from before a missed switch cannot be related to later ones.
+    fn restart_chain(&mut self, frame_id: u32) {
+        self.frame_id = Some(frame_id);
+        self.t_first_local = Isometry3::identity();
+        self.states.clear();
+        self.capture_poses.clear();
+    }
+
+    fn run_pending_odometry(&mut self, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        let Some(capture_ns) = self.pending_capture_ns.take() else {
+            return Ok(());
+        };
+        let t_first_body = self.states.iter().rev().find(|(s, _)| *s == capture_ns).map(|(_, pose)| *pose);
+        if t_first_body.is_none() {
+            if !self.latest.is_some_and(|l| l.running) {
+                self.summary.frames_before_init += 1;
+                return Ok(());
+            }
+            self.summary.prior_state_missing += 1;
+        }
+        let mut prior = None;
+        if let Some(t_first_body) = t_first_body {
+            push_bounded(&mut self.capture_poses, CAPTURE_POSES_KEPT, (capture_ns, t_first_body));
+            if self.options.vo_prior
+                && let Some(keyframe_ns) = self.keyframe_ns
+            {
+                match self.capture_poses.iter().find(|(s, _)| *s == keyframe_ns) {
+                    Some((_, t_first_keyframe)) => prior = Some(t_first_keyframe.inverse() * t_first_body),
+                    None => self.summary.prior_keyframe_missing += 1,
+                }
+            }
+        }
+        let disparity = self.options.sgm_depth_for_vo.then_some(&self.disparity);
+        let output = match self.odometry.process(&self.frame, disparity, prior.as_ref()) {
+            Ok(output) => output,
+            Err(_) => {
+                self.summary.errors += 1;
+                return Ok(());
+            }
+        };
+        if prior.is_some() {
+            self.summary.priors_used += 1;
+        }
+        self.record_vo(capture_ns, &output);
+        out.publish(Message::VoDelta(&vo_message(capture_ns, &output)))
+    }
+
+    fn record_vo(&mut self, capture_ns: u64, output: &VoOutput) {
+        self.summary.vo_frames += 1;
+        if output.new_keyframe {
+            self.summary.keyframes += 1;
+            self.keyframe_ns = Some(capture_ns);
+        }
+        if output.reset {
+            self.summary.vo_resets += 1;
+        }
+        if let Some(delta) = &output.delta {
+            self.summary.vo_deltas += 1;
+            if !output.new_keyframe {
+                self.keyframe_ns = Some(delta.keyframe_stamp_ns);
+            }
+        }
+    }
+}
+
+/// The bus form of one odometry result.
+pub fn vo_message(capture_ns: u64, output: &VoOutput) -> VoDeltaMsg {
+    let mut flags = 0;
+    if output.new_keyframe {
+        flags |= VoDeltaMsg::NEW_KEYFRAME;
+    }
+    if output.reset {
+        flags |= VoDeltaMsg::RESET;
+    }
+    let mut message = VoDeltaMsg {
+        capture_stamp_ns: capture_ns,
+        keyframe_stamp_ns: 0,
+        t_keyframe_current_body: Pose::IDENTITY,
+        covariance_body: [0.0; 36],
+        inliers: 0,
+        flags,
+    };
+    if let Some(delta) = &output.delta {
+        message.flags |= VoDeltaMsg::HAS_DELTA;
+        message.keyframe_stamp_ns = delta.keyframe_stamp_ns;
+        message.t_keyframe_current_body = Pose::from_isometry(&delta.t_keyframe_current_body);
+        message.covariance_body = msgs::covariance_to_array(&delta.covariance_body);
+        message.inliers = delta.inliers;
+    }
+    message
+}
+
+impl Node for VisionNode {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn subscriptions(&self) -> &'static [Topic] {
+        &[Topic::Stereo, Topic::FilterState, Topic::FrameSwitch]
+    }
+
+    fn on_message(&mut self, message: Message<'_>, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        match message {
+            Message::Stereo(header, bytes) => self.on_stereo(header, bytes, out),
+            Message::FilterState(state) => self.on_filter_state(state, out),
+            Message::FrameSwitch(switch) => {
+                self.on_frame_switch(switch);
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    fn on_tick(&mut self, now_ns: u64, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        if self.pending_capture_ns.is_some_and(|capture| now_ns >= capture.saturating_add(self.options.prior_wait_ns)) {
+            self.run_pending_odometry(out)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,119 @@
+//! `onboard mission --robots 2 --scenario moon --duration 120 --out runs/demo [--runner lockstep|process] [--json]`
+//!
+//! The project's main job: a simulated multi-robot exploration with every robot's full on-board
+//! stack (see [`onboard::mission`]). Prints a summary table, or with `--json` the report object.
+//! Exit codes: 0 success, 1 runtime error, 2 usage error.
+
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+use onboard::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
+
+const USAGE: &str = "usage: onboard mission [--robots N] [--scenario moon|mars] [--duration S] [--out DIR]
+                       [--runner lockstep|process] [--json] [options]
+
+  --robots N             rovers in the team (default 2)
+  --scenario NAME        simulated site: moon or mars (default moon)
+  --duration S           simulated seconds (default 120)
+  --seed N               world and sensor noise seed (default 1)
+  --downscale K          camera resolution 1024x508 / K, K in 1, 2, 4 (default 4)
+  --out DIR              output folder (default runs/demo): per robot robotN/ with
+                         estimate.tum, truth.tum, graph.g2o, map.ply, map.bt, map.png;
+                         report.json and report.md
+  --runner R             lockstep (all robots in this process, simulated time, deterministic;
+                         default) or process (one OS process per component over iceoryx2,
+                         fixed-rate tasks on the wall clock)
+  --radio R              serial (57.6 kbit/s radio, default) or wifi (lossy mesh)
+  --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
+                         ground truth with the thesis's noise models: a TEST-ONLY source until the
+                         robots' own detector and matcher exist; reports say so
+  --feed ADDR            send the ground-station feed to this UDP address (e.g. 127.0.0.1:7700)
+  --json                 print the report as one JSON object instead of the summary";
+
+fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, String> {
+    use lexopt::prelude::*;
+    let mut parser = lexopt::Parser::from_args(args);
+    let mut options = MissionOptions::default();
+    let mut json = false;
+    let text = |parser: &mut lexopt::Parser, name: &str| -> Result<String, String> {
+        let value = parser.value().map_err(|e| e.to_string())?;
+        value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
+    };
+    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
+        match arg {
+            Long("robots") => {
+                let v = text(&mut parser, "--robots")?;
+                options.robots = match v.parse::<usize>() {
+                    Ok(n) if (1..=8).contains(&n) => n,
+                    _ => return Err(format!("--robots: expected 1 to 8, got {v:?}")),
+                };
+            }
+            Long("scenario") => options.scenario = text(&mut parser, "--scenario")?,
+            Long("duration") => {
+                let v = text(&mut parser, "--duration")?;
+                options.duration_s = match v.parse::<f64>() {
+                    Ok(s) if s.is_finite() && s >= 5.0 => s,
+                    _ => return Err(format!("--duration: expected at least 5 seconds, got {v:?}")),
+                };
+            }
+            Long("seed") => {
+                let v = text(&mut parser, "--seed")?;
+                options.seed = v.parse().map_err(|_| format!("--seed: expected an integer, got {v:?}"))?;
+            }
+            Long("downscale") => {
+                let v = text(&mut parser, "--downscale")?;
+                options.downscale = match v.as_str() {
+                    "1" => 1,
+                    "2" => 2,
+                    "4" => 4,
+                    _ => return Err(format!("--downscale: expected 1, 2 or 4, got {v:?}")),
+                };
+            }
+            Long("out") => options.out = parser.value().map_err(|e| e.to_string())?.into(),
+            Long("runner") => {
+                options.runner = match text(&mut parser, "--runner")?.as_str() {
+                    "lockstep" => Runner::Lockstep,
+                    "process" => Runner::Process,
+                    other => return Err(format!("--runner: expected lockstep or process, got {other:?}")),
+                };
+            }
+            Long("radio") => {
+                options.radio = match text(&mut parser, "--radio")?.as_str() {
+                    "serial" => RadioPreset::SerialRadio,
+                    "wifi" => RadioPreset::Wifi,
+                    other => return Err(format!("--radio: expected serial or wifi, got {other:?}")),
+                };
+            }
+            Long("truth-loop-closures") => options.truth_loop_closures = true,
+            Long("feed") => {
+                let v = text(&mut parser, "--feed")?;
+                let v = v.strip_prefix("udp://").unwrap_or(&v);
+                options.feed = Some(v.parse().map_err(|_| format!("--feed: expected HOST:PORT, got {v:?}"))?);
+            }
+            Long("json") => json = true,
+            Long("help") | Short('h') => return Ok(None),
+            other => return Err(other.unexpected().to_string()),
+        }
+    }
+    if !matches!(options.scenario.as_str(), "moon" | "mars") {
+        return Err(format!("--scenario: expected moon or mars, got {:?}", options.scenario));
+    }
+    Ok(Some((options, json)))
+}
+
+pub fn main(args: Vec<OsString>) -> ExitCode {
+    let run = |(options, _json): &(MissionOptions, bool)| -> Result<MissionReport, String> {
+        onboard::mission::run(options).map_err(|e| e.to_string())
+    };
+    let ((options, json), report) = match super::parse_and_run("mission", USAGE, args, parse_args, run) {
+        Ok(done) => done,
+        Err(code) => return code,
+    };
+    if json {
+        println!("{}", report.to_json());
+    } else {
+        print!("{}", report.summary());
+        println!("outputs in {}", options.out.display());
+    }
+    ExitCode::SUCCESS
+}

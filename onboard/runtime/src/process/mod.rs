@@ -1,0 +1,275 @@
+//! The process runner (DESIGN §1, §3.1): every component of a robot in its own OS process over
+//! the iceoryx2 bus, on fixed-rate tasks on the wall clock.
+//!
+//! - [`node_main`]: one process (`onboard node <kind> --config rover.toml`);
+//! - [`supervisor`]: `onboard run --config rover.toml`, starts, watches and restarts the five;
+//! - [`relay`]: the radio between the robots of a simulated team, in the mission process.
+//!
+//! # Time
+//! Sensor time is `CLOCK_MONOTONIC − epoch`, the epoch coming from [`EPOCH_ENV`] (set by the
+//! supervisor, or by the mission for all robots), so a restarted process keeps the time base and
+//! every process's fixed-rate task releases on one grid that starts at the epoch.
+//!
+//! # Files (in the robot's `robot.output_dir`)
+//! Written when a process ends on SIGTERM: `tasks/<process>.json` (every process), the driver's
+//! `truth_world.tum`, the filter's `filter_summary.json`, the mapper's map, graph, `estimate.tum`
+//! and `mapper_status.json`, the comms' `comms_stats.json`; the supervisor's `supervisor.json`.
+//! A restarted process overwrites its predecessor's files: they describe its last life.
+//!
+//! # Signals
+//! SIGTERM and SIGINT are blocked in the process and taken by a thread in `sigwait`
+//! ([`termination_flag`]), which sets the task's stop flag: no unsafe signal handler. Children
+//! inherit the blocked mask across `exec`, so a signal that arrives before a child's own waiter
+//! runs stays pending and is not lost.
+
+pub mod node_main;
+pub mod relay;
+pub mod supervisor;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use msgs::ProcessKind;
+use nalgebra::Isometry3;
+use nix::sys::signal::{SigSet, Signal};
+use nix::time::{ClockId, clock_gettime};
+
+use crate::config::{ConfigError, RatesConfig, RoverConfig, TaskRate};
+use crate::mission::{MissionOptions, RadioPreset, Runner};
+use crate::nodes::Topic;
+
+pub use node_main::node_main;
+pub use supervisor::{SupervisorReport, supervise};
+
+/// Environment variable with the mission epoch (`CLOCK_MONOTONIC` nanoseconds of sensor time 0).
+pub const EPOCH_ENV: &str = "ONBOARD_EPOCH_NS";
+/// Environment variable naming a file that will hold the epoch (decimal nanoseconds), for a
+/// parent that fixes the epoch only once every process is ready ([`READY_DIR`]): a process
+/// without [`EPOCH_ENV`] waits for the file after its set-up.
+pub const EPOCH_FILE_ENV: &str = "ONBOARD_EPOCH_FILE";
+/// Folder in the robot's output folder where each process leaves `<process>` once set up.
+pub const READY_DIR: &str = "ready";
+
+/// Why a process of the runner failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ProcessError {
+    #[error("configuration: {0}")]
+    Config(#[from] ConfigError),
+    #[error("{EPOCH_ENV}={value:?} is not a nanosecond count")]
+    Epoch { value: String },
+    #[error("signals: {0}")]
+    Signal(nix::Error),
+    #[error("{}: {source}", path.display())]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("bus: {0}")]
+    Bus(#[from] crate::bus::BusError),
+    #[error("task: {0}")]
+    Task(#[from] crate::task::TaskError),
+    #[error("{0}")]
+    Setup(String),
+    #[error("node: {0}")]
+    Node(#[from] crate::nodes::NodeError),
+    #[error("link: {0}")]
+    Link(#[from] hal::link::LinkError),
+    #[error("outputs: {0}")]
+    Output(String),
+}
+
+pub(crate) fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> ProcessError + '_ {
+    move |source| ProcessError::Io { path: path.to_owned(), source }
+}
+
+/// The five processes of a robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum NodeKind {
+    Driver,
+    Vision,
+    Filter,
+    Mapper,
+    Comms,
+}
+
+impl NodeKind {
+    pub const ALL: [NodeKind; 5] =
+        [NodeKind::Driver, NodeKind::Vision, NodeKind::Filter, NodeKind::Mapper, NodeKind::Comms];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            NodeKind::Driver => "driver",
+            NodeKind::Vision => "vision",
+            NodeKind::Filter => "filter",
+            NodeKind::Mapper => "mapper",
+            NodeKind::Comms => "comms",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<NodeKind> {
+        NodeKind::ALL.into_iter().find(|k| k.name() == name)
+    }
+
+    pub fn process_kind(self) -> ProcessKind {
+        match self {
+            NodeKind::Driver => ProcessKind::Driver,
+            NodeKind::Vision => ProcessKind::Vision,
+            NodeKind::Filter => ProcessKind::Filter,
+            NodeKind::Mapper => ProcessKind::Mapper,
+            NodeKind::Comms => ProcessKind::Comms,
+        }
+    }
+
+    /// Topics the process publishes (the node's outputs plus its task telemetry).
+    pub fn publishes(self) -> &'static [Topic] {
+        match self {
+            NodeKind::Driver => &[Topic::Imu, Topic::WheelOdom, Topic::Stereo, Topic::TaskStats],
+            NodeKind::Vision => &[Topic::Disparity, Topic::VoDelta, Topic::Marker, Topic::TaskStats],
+            NodeKind::Filter => &[Topic::FilterState, Topic::FrameSwitch, Topic::TaskStats],
+            NodeKind::Mapper => &[Topic::FrameSwitchRequest, Topic::ToComms, Topic::TaskStats],
+            NodeKind::Comms => &[Topic::ToMapper, Topic::TaskStats],
+        }
+    }
+
+    /// The process's fixed-rate task. The driver runs at the IMU rate (it publishes every sample
+    /// on time; a frame render may take longer than a period, hence the whole period).
+    pub fn task_rate(self, rates: &RatesConfig) -> TaskRate {
+        match self {
+            NodeKind::Driver => TaskRate { hz: rates.imu_hz, deadline_fraction: None, deadline_ns: None },
+            NodeKind::Vision => rates.vision.clone(),
+            NodeKind::Filter => rates.filter.clone(),
+            NodeKind::Mapper => rates.mapper.clone(),
+            NodeKind::Comms => rates.comms.clone(),
+        }
+    }
+}
+
+/// `CLOCK_MONOTONIC` now, nanoseconds.
+pub fn monotonic_ns() -> u64 {
+    clock_gettime(ClockId::CLOCK_MONOTONIC)
+        .map(|t| (t.tv_sec().max(0) as u64).saturating_mul(1_000_000_000).saturating_add(t.tv_nsec().max(0) as u64))
+        .unwrap_or(0)
+}
+
+/// The epoch from [`EPOCH_ENV`], `None` if it is not set.
+pub fn epoch_from_env() -> Result<Option<u64>, ProcessError> {
+    match std::env::var(EPOCH_ENV) {
+        Ok(value) => value.trim().parse().map(Some).map_err(|_| ProcessError::Epoch { value }),
+        Err(std::env::VarError::NotPresent) => Ok(None),
+        Err(std::env::VarError::NotUnicode(v)) => Err(ProcessError::Epoch { value: format!("{v:?}") }),
+    }
+}
+
+/// The epoch: [`EPOCH_ENV`] if set, else the content of the [`EPOCH_FILE_ENV`] file once it
+/// exists (polled every 10 ms; `None` if `stop` is set meanwhile), else now.
+pub fn wait_for_epoch(stop: &AtomicBool) -> Result<Option<u64>, ProcessError> {
+    if let Some(epoch) = epoch_from_env()? {
+        return Ok(Some(epoch));
+    }
+    let Some(path) = std::env::var_os(EPOCH_FILE_ENV).map(PathBuf::from) else { return Ok(Some(monotonic_ns())) };
+    while !stop.load(Ordering::Relaxed) {
+        if let Ok(text) = std::fs::read_to_string(&path) {
+            return text.trim().parse().map(Some).map_err(|_| ProcessError::Epoch { value: text });
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    Ok(None)
+}
+
+/// Blocks SIGTERM and SIGINT in the calling thread and starts a thread that waits for them and
+/// sets the returned flag. Call it first in `main`, before any other thread exists, so that every
+/// thread inherits the mask (a thread with the signals unblocked would take them with the
+/// default action: death without outputs).
+pub fn termination_flag() -> Result<Arc<AtomicBool>, ProcessError> {
+    let mut set = SigSet::empty();
+    set.add(Signal::SIGTERM);
+    set.add(Signal::SIGINT);
+    set.thread_block().map_err(ProcessError::Signal)?;
+    let flag = Arc::new(AtomicBool::new(false));
+    let setter = Arc::clone(&flag);
+    std::thread::Builder::new()
+        .name("sigwait".into())
+        .spawn(move || {
+            // Only SIGTERM/SIGINT are waited for; either ends the process gracefully.
+            while set.wait().is_err() {}
+            setter.store(true, Ordering::Relaxed);
+        })
+        .map_err(|e| ProcessError::Setup(format!("starting the signal thread: {e}")))?;
+    Ok(flag)
+}
+
+/// The mission options that rebuild this robot's simulated world (`mission_world`): every
+/// process builds the same deterministic world from them instead of receiving it.
+pub fn world_options(config: &RoverConfig) -> MissionOptions {
+    MissionOptions {
+        robots: usize::from(config.driver.robots),
+        scenario: config.driver.scenario.name().to_owned(),
+        duration_s: config.driver.duration_s,
+        seed: config.driver.seed,
+        downscale: config.camera.downscale,
+        out: config.robot.output_dir(),
+        runner: Runner::Process,
+        radio: RadioPreset::SerialRadio,
+        truth_loop_closures: false,
+        feed: None,
+    }
+}
+
+/// Writes `rows` as a TUM trajectory (nothing for an empty one).
+pub fn write_tum(path: &Path, rows: &[(u64, Isometry3<f64>)]) -> Result<(), ProcessError> {
+    if rows.is_empty() {
+        return Ok(());
+    }
+    let trajectory = crate::mission::score::trajectory(rows).map_err(|e| ProcessError::Output(e.to_string()))?;
+    let mut text = String::new();
+    eval::io::write_tum(&trajectory, &mut text).map_err(|e| ProcessError::Output(e.to_string()))?;
+    std::fs::write(path, text).map_err(io_error(path))
+}
+
+/// Reads a TUM trajectory as `(stamp_ns, pose)` rows.
+pub fn read_tum(path: &Path) -> Result<Vec<(u64, Isometry3<f64>)>, ProcessError> {
+    let text = std::fs::read_to_string(path).map_err(io_error(path))?;
+    let trajectory =
+        eval::io::parse_tum(&text).map_err(|e| ProcessError::Output(format!("{}: {e}", path.display())))?;
+    Ok(trajectory.stamps_s.iter().map(|s| (s * 1e9).round().max(0.0) as u64).zip(trajectory.poses).collect())
+}
+
+/// Writes `value` as pretty JSON.
+pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<(), ProcessError> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| ProcessError::Output(e.to_string()))?;
+    std::fs::write(path, text + "\n").map_err(io_error(path))
+}
+
+/// Reads a JSON file.
+pub fn read_json(path: &Path) -> Result<serde_json::Value, ProcessError> {
+    let text = std::fs::read_to_string(path).map_err(io_error(path))?;
+    serde_json::from_str(&text).map_err(|e| ProcessError::Output(format!("{}: {e}", path.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    #[test]
+    fn node_kinds_round_trip_and_publish_telemetry() {
+        for kind in NodeKind::ALL {
+            assert_eq!(NodeKind::parse(kind.name()), Some(kind));
+            assert!(kind.publishes().contains(&Topic::TaskStats));
+        }
+        assert_eq!(NodeKind::parse("ground"), None);
+    }
+
+    #[test]
+    fn tum_round_trip_keeps_nanosecond_stamps() {
+        let dir = std::env::temp_dir().join(format!("onboard-process-tum-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.tum");
+        let rows: Vec<(u64, Isometry3<f64>)> = [5_000_000u64, 29_995_000_001, 3_600_000_000_007]
+            .iter()
+            .map(|&s| (s, Isometry3::translation(s as f64 * 1e-9, 1.0, -2.0)))
+            .collect();
+        write_tum(&path, &rows).unwrap();
+        let back = read_tum(&path).unwrap();
+        assert_eq!(back.iter().map(|r| r.0).collect::<Vec<_>>(), rows.iter().map(|r| r.0).collect::<Vec<_>>());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,362 @@
+//! One on-board process: `onboard node <driver|vision|filter|mapper|comms> --config rover.toml`.
+//!
+//! Builds its node as the lockstep mission does (`mission::lockstep::robot_stack`), attaches it to
+//! the robot's bus, and runs a [`FixedRateTask`] at the process's configured rate: per release
+//! it drains the inbox into [`Node::on_message`], then calls [`Node::on_tick`] with the sensor
+//! time of the release (the comms process also pumps its UDP links). About once a second it
+//! publishes its task's [`msgs::TaskStatsMsg`]. On SIGTERM it finishes the current release, writes
+//! its files (module docs of [`crate::process`]) and exits 0.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use hal::link::Link;
+use hal::udp::UdpLink;
+use protocol::RobotId;
+use serde_json::{Value, json};
+use sim::world::World;
+
+use super::{
+    NodeKind, ProcessError, READY_DIR, io_error, monotonic_ns, termination_flag, wait_for_epoch, world_options,
+    write_json,
+};
+use crate::bus::{Bus, BusInbox, BusOutbox, ImageGeometry};
+use crate::config::{LinkKind, RoverConfig};
+use crate::mission::world::{mission_world, robot_id};
+use crate::nodes::comms::{CommsConfig, CommsNode, LinkConfig, LinkDriver, LinkId};
+use crate::nodes::driver::{DriverNode, DriverOptions};
+use crate::nodes::filter::{FilterNode, FilterNodeOptions};
+use crate::nodes::mapper::{MapperConfig, MapperNode};
+use crate::nodes::vision::{VisionNode, VisionNodeOptions};
+use crate::nodes::{Message, Node, Outbox};
+use crate::task::rt::{self, RtReport};
+use crate::task::{FixedRateTask, RunEnd};
+use crate::team_record::sim_vio_options;
+
+/// Task telemetry period.
+const STATS_PERIOD_NS: u64 = 1_000_000_000;
+/// Ground link id (team links start at 1), as in the lockstep mission.
+const GROUND_LINK: LinkId = LinkId(0);
+const TEAM_LINK: LinkId = LinkId(1);
+/// The ground feed's share of the link (bytes/s), as in the lockstep mission.
+const GROUND_RATE_BYTES_PER_S: u64 = 2_000;
+
+/// A built node with what its process needs besides the bus.
+enum Hosted {
+    Driver(Box<DriverNode>),
+    Vision(Box<VisionNode>),
+    Filter(Box<FilterNode>),
+    Mapper(Box<MapperNode>),
+    Comms(Box<CommsNode>, LinkDriver),
+}
+
+impl Hosted {
+    fn node(&mut self) -> &mut dyn Node {
+        match self {
+            Hosted::Driver(n) => n.as_mut(),
+            Hosted::Vision(n) => n.as_mut(),
+            Hosted::Filter(n) => n.as_mut(),
+            Hosted::Mapper(n) => n.as_mut(),
+            Hosted::Comms(n, _) => n.as_mut(),
+        }
+    }
+
+    fn release(&mut self, now_ns: u64, inbox: &mut BusInbox, outbox: &mut BusOutbox) -> Result<(), ProcessError> {
+        let node = self.node();
+        inbox.drain(&mut |message| node.on_message(message, outbox))?;
+        node.on_tick(now_ns, outbox)?;
+        if let Hosted::Comms(comms, links) = self {
+            links.pump(comms, now_ns)?;
+        }
+        Ok(())
+    }
+}
+
+fn world(config: &RoverConfig) -> Result<Arc<World>, ProcessError> {
+    mission_world(&world_options(config)).map_err(|e| ProcessError::Setup(e.to_string()))
+}
+
+fn driver_node(world: &Arc<World>, config: &RoverConfig) -> Result<DriverNode, ProcessError> {
+    let end_ns = (config.driver.duration_s * 1e9) as u64;
+    Ok(DriverNode::new(Arc::clone(world), usize::from(config.robot.id), DriverOptions { end_stamp_ns: Some(end_ns) })?)
+}
+
+fn vision_node(world: &Arc<World>, config: &RoverConfig) -> Result<VisionNode, ProcessError> {
+    let calibration = driver_node(world, config)?
+        .stereo_calibration()
+        .ok_or_else(|| ProcessError::Setup(format!("robot {} has no stereo camera", config.robot.id)))?;
+    Ok(VisionNode::new(&calibration, VisionNodeOptions::from_vio(&sim_vio_options(world, true)))?)
+}
+
+fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessError> {
+    let link = &config.link;
+    let mut links = Vec::new();
+    let mut driver = LinkDriver::new();
+    match link.kind {
+        LinkKind::Udp => {
+            let peers = link.peer_addrs();
+            if !peers.is_empty() {
+                let bind = link.bind_addr().ok_or_else(|| ProcessError::Setup(format!("link.bind {:?}", link.bind)))?;
+                let udp = UdpLink::bind(bind)?.with_peers(peers.iter().map(|(_, a)| *a));
+                let peer_ids = peers.iter().map(|(id, _)| RobotId(robot_id(usize::from(*id)) as u8)).collect();
+                links.push(LinkConfig::team(
+                    TEAM_LINK,
+                    "team radio",
+                    udp.framing(),
+                    link.bandwidth_bytes_per_s,
+                    peer_ids,
+                ));
+                driver.add(TEAM_LINK, Box::new(udp));
+            }
+        }
+        LinkKind::None => {}
+        LinkKind::Serial => {
+            return Err(ProcessError::Setup(
+                "link.kind = \"serial\" is not supported by the process runner yet".into(),
+            ));
+        }
+    }
+    if let Some(feed) = link.ground_feed_addr() {
+        let udp = UdpLink::bind("0.0.0.0:0")?.with_peers([feed]);
+        links.push(LinkConfig::ground(GROUND_LINK, udp.framing(), GROUND_RATE_BYTES_PER_S));
+        driver.add(GROUND_LINK, Box::new(udp));
+    }
+    let mut comms_config = CommsConfig::new(RobotId(robot_id(usize::from(config.robot.id)) as u8), links);
+    // A new boot id per start: peers reset their channels to a restarted process.
+    comms_config.boot_id = (monotonic_ns() / 1_000) as u32 ^ std::process::id();
+    let comms = CommsNode::new(comms_config).map_err(|e| ProcessError::Setup(format!("comms: {e}")))?;
+    Ok((comms, driver))
+}
+
+fn build(kind: NodeKind, config: &RoverConfig, dir: &Path) -> Result<Hosted, ProcessError> {
+    Ok(match kind {
+        NodeKind::Driver => Hosted::Driver(Box::new(driver_node(&world(config)?, config)?)),
+        NodeKind::Vision => Hosted::Vision(Box::new(vision_node(&world(config)?, config)?)),
+        NodeKind::Filter => {
+            let world = world(config)?;
+            Hosted::Filter(Box::new(FilterNode::new(FilterNodeOptions::from_vio(&sim_vio_options(&world, true)))))
+        }
+        NodeKind::Mapper => {
+            let vision = vision_node(&world(config)?, config)?;
+            let mut mapper_config =
+                MapperConfig::new(robot_id(usize::from(config.robot.id)), *vision.rectified_calibration());
+            mapper_config.state_dir = Some(dir.join("state"));
+            Hosted::Mapper(Box::new(
+                MapperNode::new(mapper_config).map_err(|e| ProcessError::Setup(format!("mapper: {e}")))?,
+            ))
+        }
+        NodeKind::Comms => {
+            let (comms, links) = comms_node(config)?;
+            Hosted::Comms(Box::new(comms), links)
+        }
+    })
+}
+
+/// The first point of the grid `epoch + k·period` at or after `now`: every process of the robot
+/// releases on the same grid, and a late starter does not count the releases it missed.
+fn grid_start_ns(epoch_ns: u64, period_ns: u64, now_ns: u64) -> u64 {
+    if now_ns <= epoch_ns || period_ns == 0 {
+        return epoch_ns;
+    }
+    epoch_ns + (now_ns - epoch_ns).div_ceil(period_ns) * period_ns
+}
+
+/// Runs process `kind` of the robot configured in `config_path` until SIGTERM or SIGINT.
+pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError> {
+    let stop = termination_flag()?;
+    let config = RoverConfig::load(config_path)?;
+    let dir = config.robot.output_dir();
+    let tasks_dir = dir.join("tasks");
+    std::fs::create_dir_all(&tasks_dir).map_err(io_error(&tasks_dir))?;
+
+    let mut hosted = build(kind, &config, &dir)?;
+    let (width_px, height_px) = config.camera.image_size_px();
+    let bus = Bus::open(config.robot.bus_id(), kind.name(), ImageGeometry { width_px, height_px })?;
+    let mut outbox = bus.outbox(kind.publishes())?;
+    let mut inbox = bus.inbox(hosted.node().subscriptions())?;
+    let ready = dir.join(READY_DIR);
+    std::fs::create_dir_all(&ready).map_err(io_error(&ready))?;
+    std::fs::write(ready.join(kind.name()), b"").map_err(io_error(&ready))?;
+    let Some(epoch_ns) = wait_for_epoch(&stop)? else { return Ok(()) };
+
+    // After the set-up: locking memory earlier would lock the world's build garbage too.
+    let rt_report = rt::apply(&config.realtime.request(kind.process_kind()));
+    let spec = kind.task_rate(&config.rates).spec(kind.name());
+    let start_ns = grid_start_ns(epoch_ns, spec.period_ns, monotonic_ns());
+    let mut task = FixedRateTask::monotonic(spec)?
+        .with_identity(kind.process_kind(), 0)
+        .with_stop_flag(Arc::clone(&stop))
+        .with_start_ns(start_ns);
+    eprintln!(
+        "{}: bus {}, {} Hz, release 0 at sensor time {:.3} s",
+        bus.node_name(),
+        bus.robot_id(),
+        kind.task_rate(&config.rates).hz,
+        start_ns.saturating_sub(epoch_ns) as f64 * 1e-9
+    );
+    let mut stats_failed = 0u64;
+    loop {
+        let end = task.run_for_ns(STATS_PERIOD_NS, |release| {
+            hosted.release(release.start_ns.saturating_sub(epoch_ns), &mut inbox, &mut outbox)
+        })?;
+        // Telemetry is best effort: a full buffer never stops the task.
+        if outbox.publish(Message::TaskStats(&task.stats())).is_err() {
+            stats_failed += 1;
+        }
+        if end == RunEnd::Stopped {
+            break;
+        }
+    }
+    let now_ns = monotonic_ns().saturating_sub(epoch_ns);
+    let extra = finish(&mut hosted, &dir, now_ns, &mut inbox, &mut outbox)?;
+    let stats = task.stats();
+    let mut topics = serde_json::Map::new();
+    for topic in inbox.topics() {
+        let c = inbox.counters(topic);
+        topics.insert(
+            format!("in:{}", topic.path()),
+            json!({"received": c.received, "rejected": c.rejected, "sequence_gaps": c.sequence_gaps}),
+        );
+    }
+    for topic in outbox.topics() {
+        let c = outbox.counters(topic);
+        topics.insert(
+            format!("out:{}", topic.path()),
+            json!({"sent": c.sent, "deliveries": c.deliveries, "discarded": c.discarded, "failed": c.failed}),
+        );
+    }
+    let path = tasks_dir.join(format!("{}.json", kind.name()));
+    write_json(
+        &path,
+        &json!({
+            "process": kind.name(),
+            "pid": std::process::id(),
+            "period_ns": stats.period_ns,
+            "deadline_ns": stats.deadline_ns,
+            "releases": stats.releases,
+            "overruns": stats.overruns,
+            "skipped": stats.skipped,
+            "jitter_p50_ns": stats.jitter_p50_ns,
+            "jitter_p99_ns": stats.jitter_p99_ns,
+            "jitter_max_ns": stats.jitter_max_ns,
+            "execution_max_ns": stats.execution_max_ns,
+            "cpu_ns": stats.process_cpu_ns,
+            "rss_bytes": stats.process_rss_bytes,
+            "stats_publish_failed": stats_failed,
+            "realtime": rt_json(&rt_report),
+            "topics": Value::Object(topics),
+            "node": extra,
+        }),
+    )?;
+    Ok(())
+}
+
+fn rt_json(report: &RtReport) -> Value {
+    json!({
+        "fifo_priority": report.fifo_priority,
+        "memory_locked": report.memory_locked,
+        "cpu": report.cpu,
+        "skipped": report.skipped,
+    })
+}
+
+/// The last release's work and the node's files; returns node counters for the task file.
+fn finish(
+    hosted: &mut Hosted,
+    dir: &Path,
+    now_ns: u64,
+    inbox: &mut BusInbox,
+    outbox: &mut BusOutbox,
+) -> Result<Value, ProcessError> {
+    match hosted {
+        Hosted::Driver(driver) => {
+            super::write_tum(&dir.join("truth_world.tum"), driver.truth_log())?;
+            let c = driver.counts();
+            Ok(json!({"imu": c.imu, "wheel": c.wheel, "stereo": c.stereo, "finished": driver.finished()}))
+        }
+        Hosted::Vision(vision) => {
+            let s = vision.summary();
+            Ok(json!({"frames": s.frames, "vo_deltas": s.vo_deltas, "keyframes": s.keyframes,
+                      "disparity_published": s.disparity_published, "bad_stereo": s.bad_stereo}))
+        }
+        Hosted::Filter(filter) => {
+            let s = filter.summary();
+            let summary = json!({
+                "imu_received": s.imu_received,
+                "imu_lost": s.imu_lost,
+                "imu_rejected": s.imu_rejected,
+                "initialized_ns": s.initialized_ns,
+                "vo_received": s.vo_received,
+                "vo_late": s.vo_late,
+                "vo_updates_applied": s.vo_updates_applied,
+                "vo_updates_rejected": s.vo_updates_rejected,
+                "vo_dropped": s.vo_dropped,
+                "wheel_updates_applied": s.wheel_updates_applied,
+                "frame_switches": s.frame_switches,
+                "bad_messages": s.bad_messages,
+                "filter_errors": s.filter_errors,
+            });
+            write_json(&dir.join("filter_summary.json"), &summary)?;
+            Ok(summary)
+        }
+        Hosted::Mapper(_) => {
+            // What arrived since the last release still belongs to the map.
+            hosted.release(now_ns, inbox, outbox)?;
+            let Hosted::Mapper(mapper) = hosted else { return Ok(Value::Null) };
+            let estimate = mapper.online_trajectory().to_vec();
+            let written = crate::mission::write_outputs(dir, mapper, &estimate, None)
+                .map_err(|e| ProcessError::Output(e.to_string()))?;
+            let c = mapper.counters();
+            let status = json!({
+                "first_estimate_ns": estimate.first().map(|r| r.0),
+                "estimate_poses": estimate.len(),
+                "graph_nodes": written.graph_nodes,
+                "graph_factors": written.graph_factors,
+                "connected": written.connected,
+                "submaps_finished": c.submaps_finished,
+                "submaps_sent": c.submaps_sent,
+                "submaps_received": c.submaps_received,
+                "images_integrated": c.images_integrated,
+                "switch_requests": c.switch_requests,
+                "messages_rejected": c.messages_rejected,
+            });
+            write_json(&dir.join("mapper_status.json"), &status)?;
+            Ok(status)
+        }
+        Hosted::Comms(comms, links) => {
+            links.pump(comms, now_ns)?;
+            let s = comms.stats();
+            let by_class: serde_json::Map<String, Value> =
+                s.sent_by_class.iter().map(|(k, v)| ((*k).to_owned(), json!(v.wire_bytes))).collect();
+            let d = links.stats();
+            let stats = json!({
+                "sent_wire_bytes_by_class": by_class,
+                "packets_sent": s.packets_sent,
+                "packets_received": s.packets_received,
+                "retransmissions": s.retransmissions,
+                "delivered_to_mapper": s.delivered_to_mapper,
+                "packet_rejections": s.packet_rejections,
+                "peer_restarts": s.peer_restarts,
+                "link_send_errors": d.send_errors,
+                "link_packets_sent": d.packets_sent,
+                "link_packets_received": d.packets_received,
+            });
+            write_json(&dir.join("comms_stats.json"), &stats)?;
+            Ok(stats)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::grid_start_ns;
+
+    #[test]
+    fn late_starter_joins_the_shared_grid() {
+        assert_eq!(grid_start_ns(1_000, 5, 900), 1_000);
+        assert_eq!(grid_start_ns(1_000, 5, 1_000), 1_000);
+        assert_eq!(grid_start_ns(1_000, 5, 1_001), 1_005);
+        assert_eq!(grid_start_ns(1_000, 5, 1_005), 1_005);
+        assert_eq!(grid_start_ns(1_000, 0, 2_000), 1_000);
+    }
+}

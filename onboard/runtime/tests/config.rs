@@ -1,0 +1,203 @@
+//! Rover configuration: the example file loads, defaults fill what is left out, every invalid
+//! case is rejected with a message naming the key, and no input makes the loader panic.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::{Path, PathBuf};
+
+use msgs::ProcessKind;
+use onboard::config::{ConfigError, DriverKind, LinkKind, RoverConfig, Scenario};
+use onboard::task::rt::RtRequest;
+use proptest::prelude::*;
+
+fn example_path() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rover.toml")
+}
+
+fn example_text() -> String {
+    std::fs::read_to_string(example_path()).unwrap()
+}
+
+#[test]
+fn the_example_file_loads() {
+    let c = RoverConfig::load(&example_path()).unwrap();
+    assert_eq!((c.robot.id, c.robot.name.as_str()), (0, "lru1"));
+    assert_eq!(
+        (c.driver.kind, c.driver.scenario, c.driver.seed, c.driver.robots),
+        (DriverKind::Sim, Scenario::Moon, 7, 2)
+    );
+    assert_eq!(c.camera.image_size_px(), (1024, 508));
+    let filter = c.rates.filter.spec("filter");
+    assert_eq!((filter.period_ns, filter.deadline_ns), (5_000_000, 2_500_000));
+    let mapper = c.rates.mapper.spec("mapper");
+    assert_eq!((mapper.period_ns, mapper.deadline_ns), (100_000_000, 100_000_000));
+    let comms = c.rates.comms.spec("comms");
+    assert_eq!(comms.deadline_ns, comms.period_ns, "no deadline given: the whole period");
+    assert_eq!(c.link.kind, LinkKind::Udp);
+    assert_eq!(c.link.bind_addr(), Some("0.0.0.0:47000".parse().unwrap()));
+    assert_eq!(c.link.peer_addrs(), vec![(1, "127.0.0.1:47001".parse().unwrap())]);
+    assert_eq!(c.link.ground_feed_addr(), Some("127.0.0.1:47100".parse().unwrap()));
+    assert_eq!(
+        c.realtime.request(ProcessKind::Filter),
+        RtRequest { fifo_priority: Some(80), lock_memory: true, cpu: Some(1) }
+    );
+    assert_eq!(
+        c.realtime.request(ProcessKind::Mapper),
+        RtRequest { fifo_priority: None, lock_memory: true, cpu: None }
+    );
+    assert!(!c.recording.enabled);
+}
+
+#[test]
+fn only_the_robot_id_is_required() {
+    let c = RoverConfig::from_toml_str("[robot]\nid = 0\n").unwrap();
+    assert_eq!(c, RoverConfig::default());
+    c.validate().unwrap();
+    let err = RoverConfig::from_toml_str("").unwrap_err();
+    assert!(err.to_string().contains("missing field `robot`"), "{err}");
+}
+
+#[test]
+fn the_serialized_form_loads_back_identically() {
+    let c = RoverConfig::load(&example_path()).unwrap();
+    let text = c.to_toml_string();
+    assert_eq!(RoverConfig::from_toml_str(&text).unwrap(), c, "{text}");
+}
+
+#[test]
+fn a_missing_file_names_the_path() {
+    let err = RoverConfig::load(Path::new("/nonexistent/rover.toml")).unwrap_err();
+    assert!(matches!(err, ConfigError::Read { .. }));
+    assert!(err.to_string().contains("/nonexistent/rover.toml"), "{err}");
+}
+
+/// The example with `key = value` lines of `section` replaced or added.
+fn example_with(section: &str, key: &str, value: &str) -> String {
+    let mut out = String::new();
+    let mut in_section = false;
+    let mut done = false;
+    for line in example_text().lines() {
+        let trimmed = line.split('#').next().unwrap_or("").trim();
+        if trimmed.starts_with('[') {
+            if in_section && !done {
+                out.push_str(&format!("{key} = {value}\n"));
+                done = true;
+            }
+            in_section = trimmed == format!("[{section}]") || trimmed == format!("[[{section}]]");
+        }
+        if in_section && trimmed.split('=').next().map(str::trim) == Some(key) {
+            if !done {
+                out.push_str(&format!("{key} = {value}\n"));
+                done = true;
+            }
+            continue;
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    if !done {
+        if !in_section {
+            out.push_str(&format!("[{section}]\n"));
+        }
+        out.push_str(&format!("{key} = {value}\n"));
+    }
+    out
+}
+
+#[test]
+fn each_invalid_value_is_rejected_naming_its_key() {
+    let cases: &[(&str, &str, &str, &[&str])] = &[
+        ("camera", "fps", "3", &["camera.fps", "unknown field `fps`"]),
+        ("robot", "id", "-1", &["robot.id", "u16"]),
+        ("robot", "id", "\"one\"", &["robot.id"]),
+        ("robot", "id", "5", &["robot.id", "not a robot of the simulated team"]),
+        ("camera", "rate_hz", "20.0", &["camera.rate_hz", "14.6"]),
+        ("camera", "rate_hz", "0.0", &["camera.rate_hz", "positive"]),
+        ("camera", "rate_hz", "nan", &["camera.rate_hz"]),
+        ("camera", "downscale", "3", &["camera.downscale", "1, 2 or 4"]),
+        ("camera", "width_px", "8", &["camera.width_px", "16..=8192"]),
+        ("camera", "rate_hz", "14.6", &["camera.rate_hz", "does not divide rates.imu_hz"]),
+        ("rates", "wheel_hz", "30.0", &["rates.wheel_hz", "does not divide"]),
+        ("rates", "imu_hz", "-200.0", &["rates.imu_hz"]),
+        ("rates.filter", "deadline_fraction", "1.5", &["rates.filter.deadline_fraction", "at most 1"]),
+        ("rates.filter", "deadline_ns", "1000", &["rates.filter", "not both"]),
+        ("rates.mapper", "deadline_ns", "200000000", &["rates.mapper.deadline_ns", "the period"]),
+        ("rates.vision", "hz", "5.0", &["rates.vision.hz", "below camera.rate_hz"]),
+        ("rates.comms", "period", "5", &["rates.comms.period", "unknown field"]),
+        ("driver", "kind", "\"replay\"", &["driver.replay_path", "required"]),
+        ("driver", "kind", "\"hardware\"", &["driver.kind", "unknown variant `hardware`"]),
+        ("driver", "scenario", "\"venus\"", &["driver.scenario", "venus"]),
+        ("driver", "robots", "0", &["driver.robots"]),
+        ("driver", "duration_s", "-1.0", &["driver.duration_s"]),
+        ("mapper", "max_position_sigma_m", "5.0", &["mapper.max_position_sigma_m"]),
+        ("mapper", "submap_max_distance_m", "0.0", &["mapper.submap_max_distance_m"]),
+        ("mapper", "octree_voxel_m", "0.0", &["mapper.octree_voxel_m"]),
+        ("link", "bind", "\"nonsense\"", &["link.bind", "`nonsense`"]),
+        ("link", "ground_feed", "\"localhost\"", &["link.ground_feed"]),
+        ("link", "kind", "\"pigeon\"", &["link.kind", "unknown variant `pigeon`"]),
+        ("link", "kind", "\"serial\"", &["link.serial_device", "required"]),
+        ("link", "bandwidth_bytes_per_s", "0", &["link.bandwidth_bytes_per_s"]),
+        ("link.peers", "address", "\"rover2\"", &["link.peers[0].address", "`rover2`"]),
+        ("link.peers", "robot_id", "0", &["link.peers[0].robot_id", "own id"]),
+        ("realtime.filter", "fifo_priority", "0", &["realtime.filter.fifo_priority", "1..=99"]),
+        ("realtime.filter", "fifo_priority", "300", &["realtime.filter.fifo_priority", "u8"]),
+        ("realtime.vision", "cpu", "4096", &["realtime.vision.cpu"]),
+        ("recording", "directory", "\"\"", &[]), // recording disabled: an empty directory is fine
+        ("surprise", "x", "1", &["surprise", "unknown field `surprise`"]),
+    ];
+    for (section, key, value, expected) in cases {
+        let text = example_with(section, key, value);
+        let result = RoverConfig::from_toml_str(&text);
+        if expected.is_empty() {
+            assert!(result.is_ok(), "{section}.{key} = {value}: {result:?}");
+            continue;
+        }
+        let message = match result {
+            Ok(_) => panic!("{section}.{key} = {value} was accepted"),
+            Err(e) => e.to_string(),
+        };
+        for part in *expected {
+            assert!(message.contains(part), "{section}.{key} = {value}: message {message:?} lacks {part:?}");
+        }
+    }
+}
+
+#[test]
+fn consistency_rules_depend_on_the_driver() {
+    // 14.6 Hz is not a whole number of 200 Hz IMU periods, which only the simulator needs.
+    let replay = example_with("camera", "rate_hz", "14.6");
+    let replay = replay.replace("kind = \"sim\"", "kind = \"replay\"\nreplay_path = \"runs/r.log\"");
+    let c = RoverConfig::from_toml_str(&replay).unwrap();
+    assert_eq!(c.driver.kind, DriverKind::Replay);
+    assert_eq!(c.driver.replay_path.as_deref(), Some(Path::new("runs/r.log")));
+}
+
+#[test]
+fn a_syntax_error_gives_a_line() {
+    let err = RoverConfig::from_toml_str("[robot]\nid = 0\n[camera\nrate_hz = 1\n").unwrap_err();
+    match err {
+        ConfigError::Syntax { line, .. } => assert_eq!(line, 3),
+        other => panic!("{other}"),
+    }
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_text_never_panics(text in "\\PC{0,300}") {
+        let _ = RoverConfig::from_toml_str(&text);
+    }
+
+    #[test]
+    fn tomlish_text_never_panics(text in "(\\[[a-z.]{0,12}\\]\n|[a-z_]{1,12} = (-?[0-9.]{1,6}|\"[a-z:0-9.]{0,12}\"|true)\n){0,30}") {
+        let _ = RoverConfig::from_toml_str(&text);
+    }
+
+    #[test]
+    fn damaged_example_never_panics(position in any::<prop::sample::Index>(), byte in any::<u8>()) {
+        let mut bytes = example_text().into_bytes();
+        let i = position.index(bytes.len());
+        bytes[i] = byte;
+        if let Ok(text) = String::from_utf8(bytes) {
+            let _ = RoverConfig::from_toml_str(&text);
+        }
+    }
+}

@@ -1,0 +1,95 @@
+//! The mission on the process runner end to end: two robots, each a supervisor with five OS
+//! processes over iceoryx2, the radio relay between them, 30 s of sensor time on the wall clock;
+//! then the same mission on the lockstep runner, whose errors the process runner must match.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::Path;
+
+use onboard::mission::process::run_mission_with_exe;
+use onboard::mission::{self, MissionOptions, MissionReport, Runner};
+
+fn mean_error(report: &MissionReport, robot: u16) -> f64 {
+    let r = report.robots.iter().find(|r| r.robot == robot).unwrap();
+    let score = r.score.as_ref().unwrap_or_else(|| panic!("robot {robot} not scored: {:?}", r.score_error));
+    assert!(score.poses > 100, "robot {robot}: only {} scored poses", score.poses);
+    score.mean_error_m
+}
+
+#[test]
+fn two_robot_process_mission_scores_like_lockstep() {
+    let base = std::env::temp_dir().join(format!("onboard-mission-process-{}", std::process::id()));
+    let options = MissionOptions {
+        robots: 2,
+        duration_s: 30.0,
+        seed: 3,
+        downscale: 4,
+        out: base.join("process"),
+        runner: Runner::Process,
+        ..MissionOptions::default()
+    };
+    let process = run_mission_with_exe(&options, Path::new(env!("CARGO_BIN_EXE_onboard"))).unwrap();
+    assert!(options.out.join("report.json").exists() && options.out.join("report.md").exists());
+    assert_eq!(process.runner, "process");
+    for r in &process.robots {
+        println!(
+            "process robot {}: imu received {} lost {}, graph {} nodes, score {:?}",
+            r.robot, r.imu_received, r.imu_lost, r.graph_nodes, r.score
+        );
+    }
+    for p in &process.processes {
+        println!(
+            "process robot {} {:<7} releases {:>6} overruns {:>4} skipped {:>4} jitter p50 {:>7.1} p99 {:>8.1} max {:>8.1} us, cpu {:.2} s, restarts {}",
+            p.robot,
+            p.process,
+            p.releases,
+            p.deadline_overruns,
+            p.skipped_releases,
+            p.jitter_p50_us,
+            p.jitter_p99_us,
+            p.jitter_max_us,
+            p.cpu_s,
+            p.restarts
+        );
+    }
+
+    // No IMU sample lost between driver and filter, and the filter saw the whole run (200 Hz).
+    for r in &process.robots {
+        assert_eq!(r.imu_lost, 0, "robot {}", r.robot);
+        assert!(r.imu_received >= 5_900, "robot {}: {} IMU samples of 6000", r.robot, r.imu_received);
+    }
+    // Every process ran its task over the whole mission, none was restarted.
+    assert_eq!(process.processes.len(), 10);
+    for p in &process.processes {
+        assert!(p.releases > 0, "robot {} {} reported no releases", p.robot, p.process);
+        assert_eq!(p.restarts, 0, "robot {} {} restarted", p.robot, p.process);
+    }
+    // The filter's 200 Hz deadline is 2.5 ms. Here ten processes share two cores with normal
+    // scheduling (SCHED_FIFO is not permitted in this container) and the two vision processes
+    // alone need ~0.9 of a core: measured 8–12 % overruns, all from run-queue waits (jitter p99
+    // ~13 ms, longest filter run far below the deadline). The bound catches a regression to a
+    // filter that cannot keep up at all; the 1 % goal needs the real-time set-up.
+    for p in process.processes.iter().filter(|p| p.process == "filter") {
+        let planned = p.releases + p.skipped_releases;
+        assert!(planned >= 5_900, "robot {} filter: {planned} releases planned in 30 s at 200 Hz", p.robot);
+        assert!(
+            p.deadline_overruns * 100 <= p.releases * 15,
+            "robot {} filter: {} overruns in {} releases",
+            p.robot,
+            p.deadline_overruns,
+            p.releases
+        );
+    }
+
+    let lockstep_options = MissionOptions { out: base.join("lockstep"), runner: Runner::Lockstep, ..options.clone() };
+    let lockstep = mission::run(&lockstep_options).unwrap();
+    for robot in [1, 2] {
+        let (p, l) = (mean_error(&process, robot), mean_error(&lockstep, robot));
+        println!("robot {robot}: mean error process {p:.3} m, lockstep {l:.3} m");
+        // The process runner is not deterministic (wall-clock release times decide which filter
+        // state a frame's prior uses, which frames vision drops), so the errors differ by the
+        // run-to-run spread; both must stay in the lockstep runner's accuracy class.
+        assert!(p < 0.25, "robot {robot}: process runner mean error {p} m");
+        assert!((p - l).abs() <= 0.1 + 0.5 * l, "robot {robot}: process {p} m vs lockstep {l} m");
+    }
+    std::fs::remove_dir_all(&base).ok();
+}
