@@ -63,16 +63,16 @@ fn two_robot_process_mission_scores_like_lockstep() {
         assert!(p.releases > 0, "robot {} {} reported no releases", p.robot, p.process);
         assert_eq!(p.restarts, 0, "robot {} {} restarted", p.robot, p.process);
     }
-    // The filter's 200 Hz deadline is 2.5 ms. Here ten processes share two cores with normal
-    // scheduling (SCHED_FIFO is not permitted in this container) and the two vision processes
-    // alone need ~0.9 of a core: measured 8–12 % overruns, all from run-queue waits (jitter p99
-    // ~13 ms, longest filter run far below the deadline). The bound catches a regression to a
-    // filter that cannot keep up at all; the 1 % goal needs the real-time set-up.
+    // The filter's 200 Hz deadline is 2.5 ms while ten processes share two cores and the two
+    // vision processes alone need ~0.9 of a core. With normal scheduling that cost 8-12 % of the
+    // releases (run-queue waits); the mission runs the filter and driver SCHED_FIFO (this machine
+    // permits it), which measured 5 and 8 overruns in 6320 releases (0.1 %) with a jitter p99
+    // of 0.2 ms. The bound is the 1 % goal.
     for p in process.processes.iter().filter(|p| p.process == "filter") {
         let planned = p.releases + p.skipped_releases;
         assert!(planned >= 5_900, "robot {} filter: {planned} releases planned in 30 s at 200 Hz", p.robot);
         assert!(
-            p.deadline_overruns * 100 <= p.releases * 15,
+            p.deadline_overruns * 100 <= p.releases,
             "robot {} filter: {} overruns in {} releases",
             p.robot,
             p.deadline_overruns,

@@ -18,14 +18,14 @@ use sim::world::World;
 
 use super::report::{MissionReport, ProcessReport, RobotReport};
 use super::truth_closures::TruthLoopClosures;
-use super::world::{mission_world, robot_id, truth_in_own_frame};
+use super::world::{mapper_config, mission_world, robot_id, truth_in_own_frame};
 use super::{MissionError, MissionOptions, RadioPreset, write_outputs};
 use crate::lockstep::OwnedMessage;
 use crate::lockstep::{LocalBus, NodeTimes};
 use crate::nodes::comms::{CommsConfig, CommsNode, LinkConfig, LinkId, step_duplex};
 use crate::nodes::driver::{DriverNode, DriverOptions};
 use crate::nodes::filter::{FilterNode, FilterNodeOptions};
-use crate::nodes::mapper::{MapperConfig, MapperNode};
+use crate::nodes::mapper::MapperNode;
 use crate::nodes::vision::{VisionNode, VisionNodeOptions};
 use crate::nodes::{Node, Topic};
 use crate::team_record::sim_vio_options;
@@ -101,7 +101,7 @@ pub fn robot_stack(
     let vio = sim_vio_options(world, true);
     let vision = VisionNode::new(&calibration, VisionNodeOptions::from_vio(&vio)).map_err(node_error)?;
     let filter = FilterNode::new(FilterNodeOptions::from_vio(&vio));
-    let mut mapper_config = MapperConfig::new(robot_id(robot), *vision.rectified_calibration());
+    let mut mapper_config = mapper_config(robot, *vision.rectified_calibration(), options.downscale);
     mapper_config.state_dir = Some(out.join(format!("robot{robot}")).join("state"));
     let mapper =
         MapperNode::new(mapper_config).map_err(|e| MissionError::Setup(format!("robot {robot} mapper: {e}")))?;

@@ -8,7 +8,10 @@ use sim::scenario::{self, ScenarioOptions};
 use sim::truth_constraints::{TruthConstraintConfig, TruthConstraints};
 use sim::world::World;
 
+use hal::sensor::StereoCalibration;
+
 use super::{MissionError, MissionOptions};
+use crate::nodes::mapper::MapperConfig;
 
 /// The world of `options`: the scenario preset with `robots` rovers on its start ring.
 pub fn mission_world(options: &MissionOptions) -> Result<Arc<World>, MissionError> {
@@ -43,4 +46,14 @@ pub fn truth_in_own_frame(
     let t_world_own = source.true_origin(robot, initialized_ns)?;
     let t_own_world = t_world_own.inverse();
     Some(truth_world.iter().filter(|(s, _)| *s >= initialized_ns).map(|(s, t)| (*s, t_own_world * t)).collect())
+}
+
+/// The mapper's configuration for robot `robot` whose images are `1 / downscale` of 1024×508.
+/// The integrator's depth-error limit is set for full resolution; at `1/k` resolution the same
+/// disparity error is `k` times larger in depth (`Δz = z²·Δd / (f·b)`), so `k` times the limit
+/// keeps the mapped range the same (about 4.5 m on the LRU head).
+pub fn mapper_config(robot: usize, calibration: StereoCalibration, downscale: u32) -> MapperConfig {
+    let mut config = MapperConfig::new(robot_id(robot), calibration);
+    config.integrator.max_depth_error_m *= f64::from(downscale.max(1));
+    config
 }

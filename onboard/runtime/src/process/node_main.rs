@@ -26,7 +26,7 @@ use crate::mission::world::{mission_world, robot_id};
 use crate::nodes::comms::{CommsConfig, CommsNode, LinkConfig, LinkDriver, LinkId};
 use crate::nodes::driver::{DriverNode, DriverOptions};
 use crate::nodes::filter::{FilterNode, FilterNodeOptions};
-use crate::nodes::mapper::{MapperConfig, MapperNode};
+use crate::nodes::mapper::MapperNode;
 use crate::nodes::vision::{VisionNode, VisionNodeOptions};
 use crate::nodes::{Message, Node, Outbox};
 use crate::task::rt::{self, RtReport};
@@ -138,8 +138,11 @@ fn build(kind: NodeKind, config: &RoverConfig, dir: &Path) -> Result<Hosted, Pro
         }
         NodeKind::Mapper => {
             let vision = vision_node(&world(config)?, config)?;
-            let mut mapper_config =
-                MapperConfig::new(robot_id(usize::from(config.robot.id)), *vision.rectified_calibration());
+            let mut mapper_config = crate::mission::world::mapper_config(
+                usize::from(config.robot.id),
+                *vision.rectified_calibration(),
+                config.camera.downscale,
+            );
             mapper_config.state_dir = Some(dir.join("state"));
             Hosted::Mapper(Box::new(
                 MapperNode::new(mapper_config).map_err(|e| ProcessError::Setup(format!("mapper: {e}")))?,
