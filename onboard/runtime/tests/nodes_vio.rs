@@ -8,14 +8,14 @@ use std::sync::{Arc, OnceLock};
 
 use hal::sensor::{SensorEvent, SensorSource, StereoCalibration, StereoFrame};
 use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, Pose, StereoHeader,
-    VoDeltaMsg, WheelOdomMsg,
+    DisparityPixel, FilterStateMsg, FrameSwitchRequestMsg, ImuMsg, Pose, StereoHeader, VoDeltaMsg, WheelOdomMsg,
 };
 use nalgebra::Isometry3;
 use onboard::nodes::driver::{DriverNode, DriverOptions};
 use onboard::nodes::filter::{FilterNode, FilterNodeOptions};
 use onboard::nodes::vision::{VisionNode, VisionNodeOptions};
 use onboard::nodes::{Message, Node, NodeError, Outbox, Topic};
+use onboard::record::OwnedMessage;
 use onboard::team_record::{TeamRecordOptions, moon_team_world, sim_vio_options};
 use onboard::vio::{SwitchPolicy, VioOptions, VioPipeline, VioSummary};
 use sim::driver::SimSensorSource;
@@ -43,66 +43,24 @@ fn options(world: &World) -> VioOptions {
     }
 }
 
-/// A published message, owned by the router's queue.
-#[derive(Debug, Clone)]
-enum Owned {
-    Imu(ImuMsg),
-    WheelOdom(WheelOdomMsg),
-    Stereo(StereoHeader, Vec<u8>),
-    Disparity(DisparityHeader, Vec<DisparityPixel>),
-    VoDelta(VoDeltaMsg),
-    FilterState(FilterStateMsg),
-    FrameSwitchRequest(FrameSwitchRequestMsg),
-    FrameSwitch(FrameSwitchMsg),
-}
-
-impl Owned {
-    fn of(message: Message<'_>) -> Owned {
-        match message {
-            Message::Imu(m) => Owned::Imu(*m),
-            Message::WheelOdom(m) => Owned::WheelOdom(*m),
-            Message::Stereo(h, b) => Owned::Stereo(*h, b.to_vec()),
-            Message::Disparity(h, p) => Owned::Disparity(*h, p.to_vec()),
-            Message::VoDelta(m) => Owned::VoDelta(*m),
-            Message::FilterState(m) => Owned::FilterState(*m),
-            Message::FrameSwitchRequest(m) => Owned::FrameSwitchRequest(*m),
-            Message::FrameSwitch(m) => Owned::FrameSwitch(*m),
-            other => panic!("unexpected {:?}", other.topic()),
-        }
-    }
-
-    fn message(&self) -> Message<'_> {
-        match self {
-            Owned::Imu(m) => Message::Imu(m),
-            Owned::WheelOdom(m) => Message::WheelOdom(m),
-            Owned::Stereo(h, b) => Message::Stereo(h, b),
-            Owned::Disparity(h, p) => Message::Disparity(h, p),
-            Owned::VoDelta(m) => Message::VoDelta(m),
-            Owned::FilterState(m) => Message::FilterState(m),
-            Owned::FrameSwitchRequest(m) => Message::FrameSwitchRequest(m),
-            Owned::FrameSwitch(m) => Message::FrameSwitch(m),
-        }
-    }
-}
-
 /// The router's queue: every message in publish order.
 #[derive(Debug, Default)]
-struct Queue(VecDeque<Owned>);
+struct Queue(VecDeque<OwnedMessage>);
 
 impl Outbox for Queue {
     fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
-        self.0.push_back(Owned::of(message));
+        self.0.push_back(OwnedMessage::from_message(&message));
         Ok(())
     }
 }
 
 /// Collects everything published (unit tests).
 #[derive(Debug, Default)]
-struct Sink(Vec<Owned>);
+struct Sink(Vec<OwnedMessage>);
 
 impl Outbox for Sink {
     fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
-        self.0.push(Owned::of(message));
+        self.0.push(OwnedMessage::from_message(&message));
         Ok(())
     }
 }
@@ -129,9 +87,9 @@ struct Observer {
 }
 
 impl Observer {
-    fn observe(&mut self, message: &Owned, out: &mut Queue) {
+    fn observe(&mut self, message: &OwnedMessage, out: &mut Queue) {
         match message {
-            Owned::FilterState(state) => {
+            OwnedMessage::FilterState(state) => {
                 self.last_state = Some(*state);
                 if state.status != FilterStateMsg::RUNNING {
                     return;
@@ -154,13 +112,13 @@ impl Observer {
                     out.publish(Message::FrameSwitchRequest(&request)).unwrap();
                 }
             }
-            Owned::FrameSwitch(switch) => {
+            OwnedMessage::FrameSwitch(switch) => {
                 assert_eq!(switch.old_frame_id, self.frame_id);
                 self.t_first_local *= switch.t_old_new.to_isometry().unwrap();
                 self.frame_id = switch.new_frame_id;
                 self.switches += 1;
             }
-            Owned::Disparity(header, pixels) => {
+            OwnedMessage::Disparity(header, pixels) => {
                 let (w, h) = (header.width_px as usize, header.height_px as usize);
                 assert_eq!(pixels.len(), w * h);
                 self.disparity_maps += 1;
@@ -172,7 +130,7 @@ impl Observer {
                 self.obstacle_pixels += obstacles;
                 self.labelled_maps += u64::from(pixels.iter().any(|p| p.labels != 0));
             }
-            Owned::VoDelta(_) => self.vo_deltas += 1,
+            OwnedMessage::VoDelta(_) => self.vo_deltas += 1,
             _ => {}
         }
     }
@@ -186,12 +144,12 @@ fn subscribed(node: &dyn Node, topic: Topic) -> bool {
 /// then the filter) and to the observer.
 fn drain(queue: &mut Queue, vision: &mut VisionNode, filter: &mut FilterNode, observer: &mut Observer) {
     while let Some(message) = queue.0.pop_front() {
-        let topic = message.message().topic();
+        let topic = message.as_message().topic();
         if subscribed(vision, topic) {
-            vision.on_message(message.message(), queue).unwrap();
+            vision.on_message(message.as_message(), queue).unwrap();
         }
         if subscribed(filter, topic) {
-            filter.on_message(message.message(), queue).unwrap();
+            filter.on_message(message.as_message(), queue).unwrap();
         }
         observer.observe(&message, queue);
     }
@@ -451,7 +409,7 @@ fn a_late_vo_delta_is_applied_on_arrival() {
     assert_eq!(summary.clones, 2);
     // One state per IMU sample, none lost.
     let states: Vec<_> =
-        out.0.iter().filter_map(|m| if let Owned::FilterState(s) = m { Some(*s) } else { None }).collect();
+        out.0.iter().filter_map(|m| if let OwnedMessage::FilterState(s) = m { Some(*s) } else { None }).collect();
     assert_eq!(states.len() as u64, sequence);
     assert_eq!(states.last().unwrap().imu_lost, 0);
 }
@@ -490,7 +448,7 @@ fn bad_payloads_are_counted_and_skipped() {
     // A good pair still goes through afterwards (a disparity map; no odometry without a filter).
     vision.on_message(Message::Stereo(&stereo_header(0, 0, w, h), &full), &mut out).unwrap();
     vision.flush(&mut out).unwrap();
-    assert!(matches!(out.0.as_slice(), [Owned::Disparity(..)]));
+    assert!(matches!(out.0.as_slice(), [OwnedMessage::Disparity(..)]));
     assert_eq!(vision.summary().frames_before_init, 1);
 
     let mut filter = FilterNode::new(FilterNodeOptions::from_vio(&VioOptions::default()));

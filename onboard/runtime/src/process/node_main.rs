@@ -32,6 +32,7 @@ use crate::nodes::{Message, Node, Outbox};
 use crate::task::rt::{self, RtReport};
 use crate::task::{FixedRateTask, RunEnd};
 use crate::team_record::sim_vio_options;
+use hal::sensor::StereoCalibration;
 
 /// Task telemetry period.
 const STATS_PERIOD_NS: u64 = 1_000_000_000;
@@ -81,11 +82,26 @@ fn driver_node(world: &Arc<World>, config: &RoverConfig) -> Result<DriverNode, P
     Ok(DriverNode::new(Arc::clone(world), usize::from(config.robot.id), DriverOptions { end_stamp_ns: Some(end_ns) })?)
 }
 
-fn vision_node(world: &Arc<World>, config: &RoverConfig) -> Result<VisionNode, ProcessError> {
-    let calibration = driver_node(world, config)?
+fn camera_calibration(world: &Arc<World>, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
+    driver_node(world, config)?
         .stereo_calibration()
-        .ok_or_else(|| ProcessError::Setup(format!("robot {} has no stereo camera", config.robot.id)))?;
+        .ok_or_else(|| ProcessError::Setup(format!("robot {} has no stereo camera", config.robot.id)))
+}
+
+fn vision_node(world: &Arc<World>, config: &RoverConfig) -> Result<VisionNode, ProcessError> {
+    let calibration = camera_calibration(world, config)?;
     Ok(VisionNode::new(&calibration, VisionNodeOptions::from_vio(&sim_vio_options(world, true)))?)
+}
+
+/// The calibration of the images the vision process publishes (rectified as `VisionNode` does),
+/// without building a vision node and its SGM matcher.
+fn rectified_calibration(world: &Arc<World>, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
+    let raw = camera_calibration(world, config)?;
+    if raw.rectified {
+        return Ok(raw);
+    }
+    let rectifier = vision::Rectifier::new(&raw).map_err(|e| ProcessError::Setup(format!("rectification: {e}")))?;
+    Ok(rectifier.rectified_calibration())
 }
 
 fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessError> {
@@ -137,10 +153,10 @@ fn build(kind: NodeKind, config: &RoverConfig, dir: &Path) -> Result<Hosted, Pro
             Hosted::Filter(Box::new(FilterNode::new(FilterNodeOptions::from_vio(&sim_vio_options(&world, true)))))
         }
         NodeKind::Mapper => {
-            let vision = vision_node(&world(config)?, config)?;
+            let calibration = rectified_calibration(&world(config)?, config)?;
             let mut mapper_config = crate::mission::world::mapper_config(
                 usize::from(config.robot.id),
-                *vision.rectified_calibration(),
+                calibration,
                 config.camera.downscale,
             );
             mapper_config.state_dir = Some(dir.join("state"));
