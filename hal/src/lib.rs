@@ -4,6 +4,7 @@
 pub mod asl;
 pub mod can;
 pub mod emulator;
+pub mod feedlog;
 pub mod keyfile;
 pub mod kitti;
 pub mod link;

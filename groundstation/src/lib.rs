@@ -1,0 +1,3 @@
+//! The operator's ground station (see README.md).
+
+pub mod view;
