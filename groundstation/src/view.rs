@@ -14,6 +14,7 @@
 //! pose in that frame; they are listed with `connected == false` and drawn nowhere on the map.
 
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
 
 use nalgebra::{Isometry3, Matrix2};
 use protocol::message::{CommandOutcome, FilterHealth, LinkStats, Mode, QueueStats, ResourceUsage, TaskStats};
@@ -189,13 +190,17 @@ pub struct TeamView {
     pub reference_robot: Option<u8>,
     pub robots: BTreeMap<u8, RobotView>,
     pub edges: Vec<EdgeView>,
-    pub map: Option<HeightGrid>,
-    pub points: MapPoints,
+    /// Shared, not copied, between snapshots: a 200 m map is millions of cells.
+    pub map: Option<Arc<HeightGrid>>,
+    pub points: Arc<MapPoints>,
     pub link: LinkView,
     pub commands: Vec<CommandView>,
     /// Whether commands can be sent (a key was loaded and the source is live).
     pub can_command: bool,
     pub replay: Option<ReplayView>,
+    /// Recent results of operator actions the model refused or could not carry out, newest last
+    /// (e.g. `waypoint refused: robot 2 is not connected to robot 1's frame`).
+    pub notices: Vec<String>,
     /// Where the data comes from, e.g. `udp://0.0.0.0:47800` or `replay runs/demo`.
     pub source: String,
 }

@@ -34,6 +34,7 @@ fn telemetry(stamp_ms: u64) -> AnyMessage {
         queues: Default::default(),
         links: Default::default(),
         auth_rejections: 0,
+        classes: Default::default(),
     })
 }
 

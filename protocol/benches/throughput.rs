@@ -41,6 +41,7 @@ fn workload() -> Vec<AnyMessage> {
         queues: heapless::Vec::new(),
         links: heapless::Vec::new(),
         auth_rejections: 0,
+        classes: heapless::Vec::new(),
     };
     for task in ["vision", "filter", "mapper", "comms"] {
         let _ = telemetry.tasks.push(TaskStats {

@@ -108,3 +108,17 @@ fn commands_cannot_be_sent_unauthenticated_and_others_cannot_be_signed() {
     let ack = AnyMessage::from(protocol::message::Ack { channel: 1, next_expected: 0, received_mask: 0 });
     assert!(protocol::encode_authenticated(&ack, NodeId::GROUND, NodeId(1), 0, 1, &test_key(), &mut buf).is_err());
 }
+
+proptest! {
+    #[test]
+    fn telemetry_v2_class_bytes_round_trip_and_v1_is_refused(telemetry in common::telemetry(), seq in any::<u32>()) {
+        let message = AnyMessage::from(telemetry);
+        let mut buf = [0u8; MAX_PACKET_BYTES];
+        let len = encode_any(&message, seq, &mut buf);
+        prop_assert_eq!(buf[2], 2, "Telemetry travels as version 2");
+        prop_assert_eq!(&decode(&buf[..len]).map_err(|e| TestCaseError::fail(format!("{e}")))?.message, &message);
+        // A v1 receiver's packet (same key, old version) must not be read as v2.
+        buf[2] = 1;
+        prop_assert_eq!(decode(&buf[..len]), Err(DecodeError::UnsupportedVersion { key: 0x11, version: 1 }));
+    }
+}

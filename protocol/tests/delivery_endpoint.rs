@@ -70,6 +70,7 @@ fn telemetry() -> AnyMessage {
         queues: heapless::Vec::new(),
         links: heapless::Vec::new(),
         auth_rejections: 0,
+        classes: Default::default(),
     })
 }
 

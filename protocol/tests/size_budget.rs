@@ -13,7 +13,7 @@ const BUDGETS: &[(&str, usize, usize)] = &[
     ("Heartbeat", Heartbeat::POSTCARD_MAX_SIZE, 32),
     ("Ack", Ack::POSTCARD_MAX_SIZE, 16),
     ("PoseEstimate", PoseEstimate::POSTCARD_MAX_SIZE, 160),
-    ("Telemetry", Telemetry::POSTCARD_MAX_SIZE, 832),
+    ("Telemetry", Telemetry::POSTCARD_MAX_SIZE, 1024),
     ("Constraint", Constraint::POSTCARD_MAX_SIZE, 192),
     ("MatchAttempt", MatchAttempt::POSTCARD_MAX_SIZE, 24),
     ("SubmapHeader", SubmapHeader::POSTCARD_MAX_SIZE, 192),
@@ -28,6 +28,13 @@ fn every_type_is_within_its_budget() {
     for (name, max, budget) in BUDGETS {
         assert!(max <= budget, "{name}: worst case {max} B exceeds budget {budget} B");
     }
+}
+
+#[test]
+fn telemetry_v2_is_never_the_largest_body() {
+    // Per-class counters must not raise the packet bound that sizes every reliable window.
+    const { assert!(Telemetry::POSTCARD_MAX_SIZE <= SubmapChunk::POSTCARD_MAX_SIZE) };
+    assert_eq!(AnyMessage::MAX_BODY_SIZE, SubmapChunk::POSTCARD_MAX_SIZE);
 }
 
 #[test]
@@ -60,6 +67,7 @@ fn largest_telemetry() -> Telemetry {
         queues: heapless::Vec::new(),
         links: heapless::Vec::new(),
         auth_rejections: u32::MAX,
+        classes: heapless::Vec::new(),
     };
     while telemetry
         .tasks
@@ -94,6 +102,9 @@ fn largest_telemetry() -> Telemetry {
         })
         .is_ok()
     {}
+    while telemetry.classes.push(ClassBytes { message_key: u8::MAX, tx_bytes: u64::MAX, tx_packets: u32::MAX }).is_ok()
+    {
+    }
     telemetry
 }
 

@@ -5,7 +5,11 @@
 # - iproute2: `ip link add ... type vcan` for the SocketCAN test, where the kernel allows it.
 # - fonts-dejavu-core: DejaVu Sans, the TTF that eval's plots register at run time (plotters'
 #   ab_glyph backend loads no system fonts, and the repository ships no font file).
-SYSTEM_PACKAGES=(iproute2 fonts-dejavu-core)
+# - xvfb, xauth, x11-apps (xwd), Mesa's software GL (libgl1-mesa-dri, libegl1) and the X client
+#   libraries winit loads at run time: the ground station's real-window test runs the eframe app
+#   under Xvfb on llvmpipe and grabs the window.
+SYSTEM_PACKAGES=(iproute2 fonts-dejavu-core xvfb xauth x11-apps libgl1-mesa-dri libegl1 libxkbcommon-x11-0
+    libxcursor1 libxrandr2 libxi6)
 
 ensure_system_packages() {
     local missing=()

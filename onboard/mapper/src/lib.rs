@@ -9,6 +9,7 @@
 //! - [`global`]: composition of all submaps at their graph poses, cached.
 //! - [`export`]: PLY point cloud, OctoMap `.bt`, top-down height/traversability PNG.
 //! - [`slam`]: the multi-robot SLAM front-end: what enters each robot's pose graph of the team.
+//! - [`wire`]: team-protocol messages to and from `slam` measurements, submap fragmentation.
 //!
 //! # Frames
 //!
@@ -27,6 +28,7 @@ pub mod integrate;
 pub mod occupancy;
 pub mod slam;
 pub mod submap;
+pub mod wire;
 
 pub use cloud::{MapPoint, VoxelCloud};
 pub use occupancy::{OccupancyMap, OccupancyParams, VoxelKey};

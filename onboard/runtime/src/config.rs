@@ -252,8 +252,15 @@ pub struct LinkConfig {
     pub serial_baud: u32,
     /// The link's capacity the comms scheduler keeps under (a radio's, not the Ethernet's).
     pub bandwidth_bytes_per_s: u64,
-    /// UDP address of the ground station's telemetry feed; none sends no feed.
+    /// UDP address of the ground link (the ground station, or the mission's relay); none: no
+    /// ground link.
     pub ground_feed: Option<String>,
+    /// The ground link's rate cap, wire bytes/s (default
+    /// [`crate::nodes::comms::GROUND_RATE_BYTES_PER_S`]).
+    pub ground_bandwidth_bytes_per_s: u64,
+    /// Key file (`hal::keyfile` format, owner-only permissions) that authenticates ground
+    /// commands; none: every command is refused.
+    pub ground_key_file: Option<PathBuf>,
 }
 
 impl Default for LinkConfig {
@@ -266,6 +273,8 @@ impl Default for LinkConfig {
             serial_baud: 57_600,
             bandwidth_bytes_per_s: 12_500,
             ground_feed: None,
+            ground_bandwidth_bytes_per_s: crate::nodes::comms::GROUND_RATE_BYTES_PER_S,
+            ground_key_file: None,
         }
     }
 }
@@ -496,6 +505,21 @@ impl RoverConfig {
             check(feed.parse::<SocketAddr>().is_ok(), "link.ground_feed", || {
                 format!("`{feed}` is not an `ip:port` address")
             })?;
+        }
+        check(
+            (1_000..=1_000_000_000).contains(&l.ground_bandwidth_bytes_per_s),
+            "link.ground_bandwidth_bytes_per_s",
+            || {
+                // Below 1 kB/s a telemetry report and a submap chunk no longer fit a second.
+                format!("{}: expected 1000..=1e9 bytes/s", l.ground_bandwidth_bytes_per_s)
+            },
+        )?;
+        if let Some(path) = &l.ground_key_file {
+            // Loaded here so that a missing or unsafe key stops the rover before it starts; the
+            // error names the file, never the key.
+            if let Err(e) = hal::keyfile::load_auth_key(path) {
+                return Err(ConfigError::Invalid { key: "link.ground_key_file".into(), problem: e.to_string() });
+            }
         }
         match l.kind {
             LinkKind::Udp => {

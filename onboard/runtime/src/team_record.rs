@@ -99,10 +99,15 @@ pub enum TeamRecordError {
 
 /// Filter tuning for the simulated IMU (its own noise model) and the site's gravity.
 pub fn sim_vio_options(world: &World, use_wheel: bool) -> VioOptions {
-    let noise = world.scenario.imu_noise;
-    let imu = ImuNoise::from(noise.densities(world.scenario.imu_rate_hz));
-    let mut filter = FilterConfig::from_imu_noise(imu, world.scenario.body.gravity_mps2());
-    filter.imu_rate_hz = world.scenario.imu_rate_hz;
+    scenario_vio_options(&world.scenario, use_wheel)
+}
+
+/// [`sim_vio_options`] from the scenario alone (a filter process needs no world built).
+pub fn scenario_vio_options(scenario: &scenario::Scenario, use_wheel: bool) -> VioOptions {
+    let noise = scenario.imu_noise;
+    let imu = ImuNoise::from(noise.densities(scenario.imu_rate_hz));
+    let mut filter = FilterConfig::from_imu_noise(imu, scenario.body.gravity_mps2());
+    filter.imu_rate_hz = scenario.imu_rate_hz;
     // The simulator's turn-on biases, as the datasheet would state them.
     filter.initial.gyro_bias_radps = noise.gyro_bias_init_radps.max(1e-6);
     filter.initial.accel_bias_mps2 = noise.accel_bias_init_mps2.max(1e-6);

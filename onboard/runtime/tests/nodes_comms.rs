@@ -594,7 +594,8 @@ fn ground_station_gets_telemetry_and_commands_are_authenticated() {
     let outcome = |g: &Ground, id| g.acks.iter().find(|a| a.command_id == id).map(|a| a.outcome);
     assert_eq!(outcome(&ground, 42), Some(CommandOutcome::Executed));
     assert_eq!(outcome(&ground, 43), Some(CommandOutcome::Accepted));
-    assert_eq!(outcome(&ground, 44), Some(CommandOutcome::Invalid));
+    // Recording is chosen at start: refused, not pretended.
+    assert_eq!(outcome(&ground, 44), Some(CommandOutcome::Refused));
     assert_eq!(node.mode(), Mode::Autonomous);
 
     // A forged SetMode is rejected: not executed, not acknowledged, counted and reported.
@@ -606,7 +607,9 @@ fn ground_station_gets_telemetry_and_commands_are_authenticated() {
     assert_eq!(node.mode(), Mode::Autonomous);
     assert_eq!(outcome(&ground, 45), None);
     let stats = node.stats();
-    assert_eq!((stats.commands.executed, stats.commands.accepted, stats.commands.invalid), (1, 1, 1));
+    let c = stats.commands;
+    assert_eq!((c.executed, c.accepted, c.invalid, c.refused, c.waypoints), (1, 1, 0, 1, 1));
+    assert_eq!(node.last_waypoint().map(|w| (w.command_id, w.x_m, w.y_m)), Some((43, 1.0, 2.0)));
     assert_eq!(stats.commands.acks_sent, 3);
     assert!(stats.sent_by_class["Telemetry"].packets >= 3);
 }

@@ -14,8 +14,8 @@ pub use mapping::{
     SubmapEncoding, SubmapHeader,
 };
 pub use state::{
-    FilterHealth, FilterStatus, Heartbeat, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage, TaskStats,
-    Telemetry,
+    ClassBytes, FilterHealth, FilterStatus, Heartbeat, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage,
+    TaskStats, Telemetry,
 };
 pub use transport::Ack;
 
@@ -190,7 +190,7 @@ messages! {
     Heartbeat       = 0x01, v 1, LatestWins, Control;
     Ack             = 0x02, v 1, LatestWins, Control;
     PoseEstimate    = 0x10, v 1, LatestWins, State;
-    Telemetry       = 0x11, v 1, LatestWins, Telemetry;
+    Telemetry       = 0x11, v 2, LatestWins, Telemetry;
     Constraint      = 0x20, v 1, Reliable,   Constraint;
     MatchAttempt    = 0x21, v 1, Reliable,   Constraint;
     SubmapHeader    = 0x30, v 1, Reliable,   Bulk;

@@ -122,6 +122,20 @@ pub struct ResourceUsage {
 pub const MAX_TASKS: usize = 8;
 pub const MAX_QUEUES: usize = 8;
 pub const MAX_LINKS: usize = 4;
+/// Message classes in [`Telemetry::classes`]: every type of the protocol with room to grow.
+pub const MAX_CLASSES: usize = 12;
+
+/// What the sender put on its links for one message class since its start (all links summed,
+/// retransmissions included), so the ground station can plot bytes per second per class.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+pub struct ClassBytes {
+    /// The class's `MessageKey` (`0x11` = `Telemetry`, …).
+    pub message_key: u8,
+    /// Cumulative wire bytes (framing included), as the link's rate cap charges them.
+    pub tx_bytes: u64,
+    /// Cumulative packets; saturates at `u32::MAX`.
+    pub tx_packets: u32,
+}
 
 /// A robot's periodic health report to the ground station.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, MaxSize)]
@@ -136,4 +150,6 @@ pub struct Telemetry {
     pub links: Vec<LinkStats, MAX_LINKS>,
     /// Uplink commands rejected as forged, corrupted or replayed since start.
     pub auth_rejections: u32,
+    /// Bytes sent per message class (v2), in ascending key order.
+    pub classes: Vec<ClassBytes, MAX_CLASSES>,
 }

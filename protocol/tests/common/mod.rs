@@ -3,7 +3,7 @@
 
 use heapless::{String, Vec};
 use proptest::prelude::*;
-use protocol::message::state::{MAX_LINKS, MAX_QUEUES, MAX_TASKS};
+use protocol::message::state::{MAX_CLASSES, MAX_LINKS, MAX_QUEUES, MAX_TASKS};
 use protocol::message::*;
 use protocol::{Cov6, NodeId, NodeRef, Pose3, RobotId, SubmapId};
 
@@ -164,6 +164,11 @@ pub fn telemetry() -> impl Strategy<Value = Telemetry> {
                 }
             },
         );
+    let class = (any::<u8>(), any::<u64>(), any::<u32>()).prop_map(|(message_key, tx_bytes, tx_packets)| ClassBytes {
+        message_key,
+        tx_bytes,
+        tx_packets,
+    });
     let resources =
         (any::<u16>(), any::<u32>(), any::<u32>()).prop_map(|(cpu_permille, mem_used_kib, mem_total_kib)| {
             ResourceUsage { cpu_permille, mem_used_kib, mem_total_kib }
@@ -178,17 +183,10 @@ pub fn telemetry() -> impl Strategy<Value = Telemetry> {
         heapless_vec::<_, MAX_QUEUES>(queue),
         heapless_vec::<_, MAX_LINKS>(link),
         any::<u32>(),
+        heapless_vec::<_, MAX_CLASSES>(class),
     )
-        .prop_map(|(robot, stamp_ns, mode, filter, resources, tasks, queues, links, auth_rejections)| Telemetry {
-            robot,
-            stamp_ns,
-            mode,
-            filter,
-            resources,
-            tasks,
-            queues,
-            links,
-            auth_rejections,
+        .prop_map(|(robot, stamp_ns, mode, filter, resources, tasks, queues, links, auth_rejections, classes)| {
+            Telemetry { robot, stamp_ns, mode, filter, resources, tasks, queues, links, auth_rejections, classes }
         })
 }
 

@@ -33,14 +33,21 @@
 //! Buffers are per subscriber and per publisher connection. *Drop oldest* is iceoryx2's safe
 //! overflow: the newest sample replaces the oldest unread one. *Discard newest* turns safe
 //! overflow off: a sample that finds the buffer full is not delivered to that subscriber, the
-//! publisher never blocks, and the publisher counts it ([`PublishCounters::discarded`]). History
-//! is 0 everywhere: a restarted process rebuilds its state from its own persistence, and a
-//! replayed stale message (e.g. a frame-switch request for a frame that already ended in a
-//! previous life) would be misapplied.
+//! publisher never blocks, and the publisher counts it ([`PublishCounters::discarded`]).
+//!
+//! *History* (iceoryx2 0.10): the publisher keeps its last `history` samples, and a subscriber
+//! that connects gets up to `min(history, its buffer)` of them, delivered when the publisher next
+//! updates its connections (at its next send). Only the IMU has one: a restarted filter resumes
+//! from its checkpoint (≤ 0.25 s old) and takes the samples it missed from the history
+//! (`nodes::filter`); the buffer is twice the history so that the new samples sent before the
+//! filter's first drain still fit behind the replayed ones. Everywhere else history is 0: a
+//! restarted process rebuilds its state from its own persistence, and a replayed stale message
+//! (e.g. a frame-switch request for a frame that already ended in a previous life) would be
+//! misapplied.
 //!
 //! | topic | rate | sub. buffer | borrow | pubs / subs | full buffer | why |
 //! |---|---|---|---|---|---|---|
-//! | `sensors/imu` | 200 Hz | 256 | 256 | 2 / 4 | discard newest, counted | the filter drains every 5 ms; 256 samples = 1.28 s, so a filter stall of up to 1 s loses nothing (`tests/bus_recovery.rs`: 200 samples undrained, all arrive in order). Beyond that the loss is counted by the publisher and seen by the filter as a sequence gap; the prefix stays contiguous. |
+//! | `sensors/imu` | 200 Hz | 512, history 256 | 512 | 2 / 4 | discard newest, counted | the filter drains every 5 ms; 512 samples = 2.56 s, so a filter stall of up to 2 s loses nothing (`tests/bus_recovery.rs`: 200 samples undrained, all arrive in order). Beyond that the loss is counted by the publisher and seen by the filter as a sequence gap; the prefix stays contiguous. History 256 = 1.28 s: covers a filter restart (checkpoint age + ~0.5 s restart, `tests/mission_faults.rs`). |
 //! | `sensors/wheel_odom` | 50 Hz | 64 | 64 | 2 / 4 | discard newest, counted | same 1.28 s as the IMU |
 //! | `sensors/stereo` | 10 Hz | 2 | 2 | 2 / 3 | drop oldest | vision must work on the newest pair; a late pair is worth less than a dropped one. Drops show as `sequence` gaps ([`TopicCounters::sequence_gaps`]). 1 MB per sample, so buffers stay small. |
 //! | `vision/disparity` | 10 Hz | 4 | 2 | 2 / 3 | drop oldest | the mapper may pause for a submap finish; 0.4 s of maps, then oldest dropped and counted as `sequence` gaps. 2 MB per sample. |
@@ -131,7 +138,7 @@ pub fn qos(topic: Topic) -> TopicQos {
         overflow: Overflow::DiscardNewest,
     };
     match topic {
-        Topic::Imu => discard(256),
+        Topic::Imu => TopicQos { history: 256, ..discard(512) },
         Topic::WheelOdom => discard(64),
         Topic::Stereo => TopicQos {
             subscriber_buffer: 2,

@@ -27,7 +27,17 @@ const USAGE: &str = "usage: onboard mission [--robots N] [--scenario moon|mars] 
   --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
                          ground truth with the thesis's noise models: a TEST-ONLY source until the
                          robots' own detector and matcher exist; reports say so
-  --feed ADDR            send the ground-station feed to this UDP address (e.g. 127.0.0.1:7700)
+  --feed ADDR            the ground station's UDP address (e.g. 127.0.0.1:7700): the robots' ground
+                         links (telemetry v2, poses, constraints, submaps) go there from one socket,
+                         and what it sends back (acks, commands) reaches the addressed robot;
+                         without it an in-process stand-in acknowledges. Either way the ground
+                         traffic is recorded in OUT/ground_feed.log (groundstation --replay OUT)
+  --ground-key FILE      key file (hex, owner-only permissions) authenticating ground commands on
+                         every robot; without it every command is refused
+  --ground-delay-ms MS   one-way delay of the emulated ground link, process runner (default 1000)
+  --kill [R:]P@S         fault injection (process runner): SIGKILL to process P (driver, vision,
+                         filter, mapper, comms) of robot index R (folder robotR/, default 0) at
+                         S seconds of mission time; repeatable; recorded in faults.json
   --json                 print the report as one JSON object instead of the summary";
 
 fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, String> {
@@ -90,6 +100,18 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                 let v = v.strip_prefix("udp://").unwrap_or(&v);
                 options.feed = Some(v.parse().map_err(|_| format!("--feed: expected HOST:PORT, got {v:?}"))?);
             }
+            Long("kill") => {
+                let v = text(&mut parser, "--kill")?;
+                options.faults.push(v.parse().map_err(|e| format!("--kill: {e}"))?);
+            }
+            Long("ground-key") => options.ground_key = Some(parser.value().map_err(|e| e.to_string())?.into()),
+            Long("ground-delay-ms") => {
+                let v = text(&mut parser, "--ground-delay-ms")?;
+                options.ground_delay_ms = match v.parse::<u64>() {
+                    Ok(ms) if ms <= 60_000 => ms,
+                    _ => return Err(format!("--ground-delay-ms: expected 0 to 60000, got {v:?}")),
+                };
+            }
             Long("json") => json = true,
             Long("help") | Short('h') => return Ok(None),
             other => return Err(other.unexpected().to_string()),
@@ -97,6 +119,12 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     }
     if !matches!(options.scenario.as_str(), "moon" | "mars") {
         return Err(format!("--scenario: expected moon or mars, got {:?}", options.scenario));
+    }
+    if !options.faults.is_empty() && options.runner != Runner::Process {
+        return Err("--kill needs --runner process".to_owned());
+    }
+    if let Some(fault) = options.faults.iter().find(|f| f.robot >= options.robots) {
+        return Err(format!("--kill: robot index {} of {} robots", fault.robot, options.robots));
     }
     Ok(Some((options, json)))
 }

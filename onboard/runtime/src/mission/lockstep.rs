@@ -4,16 +4,23 @@
 //! Time advances in IMU periods (5 ms). Per step and robot: the driver publishes the sensor data
 //! due, every message is delivered through the robot's [`LocalBus`]; the mapper's task runs at
 //! 10 Hz and the comms task at 50 Hz of sensor time; then every radio moves the packets that
-//! arrived. Deterministic for a seed: no thread, clock or hash order decides anything.
+//! arrived. Deterministic for a seed: no thread, clock or hash order decides anything (with a
+//! `--feed` ground station, what it sends back is of course its own).
+//!
+//! Ground link: every robot's comms has one ([`GROUND_LINK`], rate
+//! [`GROUND_RATE_BYTES_PER_S`]); per step its packets go to the [`GroundEnd`] (the ground station
+//! at `--feed`, or the in-process stand-in), and what the ground sends back (acks, commands) is
+//! read without waiting and handed to the addressed robot's ground link. Everything is recorded
+//! in `out/ground_feed.log`. No link delay is emulated here: simulated time runs at the
+//! machine's pace, not the wall clock's.
 
 use std::collections::BTreeMap;
-use std::net::UdpSocket;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
 use hal::emulator::{DuplexEmulator, EmulatorConfig};
-use protocol::RobotId;
+use protocol::{NodeId, RobotId};
 use sim::world::World;
 
 use super::report::{MissionReport, ProcessReport, RobotReport};
@@ -22,7 +29,9 @@ use super::world::{mapper_config, mission_world, robot_id, truth_in_own_frame};
 use super::{MissionError, MissionOptions, RadioPreset, write_outputs};
 use crate::lockstep::OwnedMessage;
 use crate::lockstep::{LocalBus, NodeTimes};
-use crate::nodes::comms::{CommsConfig, CommsNode, LinkConfig, LinkId, step_duplex};
+use crate::nodes::comms::{
+    CommsConfig, CommsNode, GROUND_RATE_BYTES_PER_S, GroundEnd, LinkConfig, LinkId, step_duplex,
+};
 use crate::nodes::driver::{DriverNode, DriverOptions};
 use crate::nodes::filter::{FilterNode, FilterNodeOptions};
 use crate::nodes::mapper::MapperNode;
@@ -34,9 +43,9 @@ const STEP_NS: u64 = 5_000_000;
 const MAPPER_PERIOD_NS: u64 = 100_000_000;
 const COMMS_PERIOD_NS: u64 = 20_000_000;
 /// Ground link id on every robot; team links are `LinkId(1 + peer index)`.
-const GROUND_LINK: LinkId = LinkId(0);
-/// The ground feed's rate cap (bytes/s): a slice of the link, never in the way of team traffic.
-const GROUND_RATE_BYTES_PER_S: u64 = 2_000;
+pub const GROUND_LINK: LinkId = LinkId(0);
+/// The recording of the ground link in the output folder (`hal::feedlog`).
+pub const GROUND_FEED_LOG: &str = "ground_feed.log";
 
 /// One robot's nodes.
 #[derive(Debug)]
@@ -103,6 +112,9 @@ pub fn robot_stack(
     let filter = FilterNode::new(FilterNodeOptions::from_vio(&vio));
     let mut mapper_config = mapper_config(robot, *vision.rectified_calibration(), options.downscale);
     mapper_config.state_dir = Some(out.join(format!("robot{robot}")).join("state"));
+    if let Some(distance_m) = options.submap_max_distance_m {
+        mapper_config.policy.max_distance_m = distance_m;
+    }
     let mapper =
         MapperNode::new(mapper_config).map_err(|e| MissionError::Setup(format!("robot {robot} mapper: {e}")))?;
     let radio = radio_config(options.radio);
@@ -117,11 +129,13 @@ pub fn robot_stack(
             vec![peer_id],
         ));
     }
-    if options.feed.is_some() {
-        links.push(LinkConfig::ground(GROUND_LINK, hal_datagram(), GROUND_RATE_BYTES_PER_S));
-    }
+    links.push(LinkConfig::ground(GROUND_LINK, hal_datagram(), GROUND_RATE_BYTES_PER_S));
     let mut comms_config = CommsConfig::new(RobotId(robot_id(robot) as u8), links);
     comms_config.boot_id = robot_id(robot).into();
+    if let Some(key) = &options.ground_key {
+        comms_config =
+            comms_config.with_key_file(key).map_err(|e| MissionError::Setup(format!("--ground-key: {e}")))?;
+    }
     let comms = CommsNode::new(comms_config).map_err(|e| MissionError::Setup(format!("robot {robot} comms: {e}")))?;
     Ok(RobotStack { robot, driver, vision, filter, mapper, comms, bus: LocalBus::new(), times: NodeTimes::default() })
 }
@@ -129,6 +143,22 @@ pub fn robot_stack(
 fn hal_datagram() -> protocol::frame::Framing {
     // One UDP datagram per packet, below the usual 1280-byte IPv6 minimum MTU.
     protocol::frame::Framing::Datagram { mtu: 1200 }
+}
+
+/// Moves one step's ground traffic: what the ground sent back first (it may free window room),
+/// then what each robot may send now.
+fn step_ground(ground: &mut GroundEnd, robots: &mut [RobotStack], now_ns: u64) {
+    while let Some((node, packet)) = ground.poll_uplink(now_ns) {
+        if let Some(stack) = robots.iter_mut().find(|s| robot_id(s.robot) == u16::from(node.0)) {
+            stack.comms.handle_packet(now_ns, GROUND_LINK, packet);
+        }
+    }
+    for stack in robots.iter_mut() {
+        let node = NodeId(robot_id(stack.robot) as u8);
+        while let Some(packet) = stack.comms.poll_transmit_on(now_ns, GROUND_LINK) {
+            ground.downlink(now_ns, node, packet);
+        }
+    }
 }
 
 /// Runs the mission of `options` on the lockstep runner and writes its outputs.
@@ -154,13 +184,9 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             radios.insert((a, b), DuplexEmulator::symmetric(radio.clone().with_seed(seed)));
         }
     }
-    let feed = match options.feed {
-        Some(addr) => {
-            let socket = UdpSocket::bind("0.0.0.0:0").map_err(|e| MissionError::Setup(format!("feed socket: {e}")))?;
-            Some((socket, addr))
-        }
-        None => None,
-    };
+    let nodes: Vec<NodeId> = (0..options.robots).map(|r| NodeId(robot_id(r) as u8)).collect();
+    let mut ground = GroundEnd::new(options.feed, &nodes, Some(&out.join(GROUND_FEED_LOG)))
+        .map_err(|e| MissionError::Setup(e.to_string()))?;
     let mut truth = options.truth_loop_closures.then(|| TruthLoopClosures::new(&world, options.robots));
     if truth.is_some() {
         for stack in &mut robots {
@@ -205,14 +231,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             let (ra, rb) = (&mut left[a], &mut right[0]);
             step_duplex(duplex, now_ns, (&mut ra.comms, LinkId(1 + b as u8)), (&mut rb.comms, LinkId(1 + a as u8)));
         }
-        if let Some((socket, addr)) = &feed {
-            for stack in &mut robots {
-                while let Some(packet) = stack.comms.poll_transmit_on(now_ns, GROUND_LINK) {
-                    // The ground station may be absent: a refused datagram is not the mission's problem.
-                    let _ = socket.send_to(packet, addr);
-                }
-            }
-        }
+        step_ground(&mut ground, &mut robots, now_ns);
         now_ns += STEP_NS;
     }
     let mut robot_reports = Vec::new();
@@ -264,6 +283,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             });
         }
     }
+    ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
     let report = MissionReport {
         runner: "lockstep".to_owned(),
         scenario: options.scenario.clone(),

@@ -62,8 +62,20 @@ pub struct MissionOptions {
     pub radio: RadioPreset,
     /// Loop closures from the simulator's ground truth (test-only source; reported as such).
     pub truth_loop_closures: bool,
-    /// Where the ground feed goes (UDP); `None` = no feed.
+    /// The ground station's UDP address; `None`: an in-process stand-in acknowledges the
+    /// robots' ground links. Either way the ground traffic is recorded in `out/ground_feed.log`.
     pub feed: Option<SocketAddr>,
+    /// Key file (`hal::keyfile`) that authenticates ground commands on every robot; `None`:
+    /// every command is refused.
+    pub ground_key: Option<PathBuf>,
+    /// One-way delay of the emulated ground link, ms (process runner; the lockstep runner's
+    /// simulated time has no wall-clock link to delay).
+    pub ground_delay_ms: u64,
+    /// Processes killed (SIGKILL) during the mission: process runner only.
+    pub faults: Vec<process::Fault>,
+    /// The mapper's submap length instead of the configuration's 7 m (process runner only;
+    /// short missions use it to finish submaps).
+    pub submap_max_distance_m: Option<f64>,
 }
 
 impl Default for MissionOptions {
@@ -79,6 +91,10 @@ impl Default for MissionOptions {
             radio: RadioPreset::SerialRadio,
             truth_loop_closures: false,
             feed: None,
+            ground_key: None,
+            ground_delay_ms: 1_000,
+            faults: Vec::new(),
+            submap_max_distance_m: None,
         }
     }
 }

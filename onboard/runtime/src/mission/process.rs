@@ -9,22 +9,32 @@
 //! the processes write their files (see [`crate::process`]), from which the report is made:
 //! the online estimate scored against the driver's truth in the robot's own frame, as the
 //! lockstep runner scores it.
+//!
+//! # Fault injection
+//! [`MissionOptions::faults`] (`onboard mission --kill 1:mapper@22`): at that sensor time the
+//! mission sends SIGKILL to the process, whose pid it reads from the supervisor's
+//! `robotN/pids/<process>` (checked to be a child of that supervisor). Each kill is recorded in
+//! `faults.json` in the output folder, with the robot's finished submaps on disk at that moment
+//! (`state/submaps/`), so that a test can check that none is lost.
 
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use serde_json::Value;
+use serde_json::{Value, json};
 
 use super::report::{MissionReport, ProcessReport, RobotReport};
 use super::world::{mission_world, robot_id, truth_in_own_frame};
 use super::{MissionError, MissionOptions, RadioPreset, score};
 use crate::config::{LinkKind, PeerConfig, RoverConfig, Scenario};
 use crate::process::relay::Relay;
-use crate::process::{EPOCH_FILE_ENV, NodeKind, READY_DIR, monotonic_ns, read_json, read_tum, write_tum};
+use crate::process::{
+    EPOCH_FILE_ENV, NodeKind, PID_DIR, READY_DIR, monotonic_ns, read_json, read_tum, write_json, write_tum,
+};
 
 /// After the last sensor stamp: time for the last frames to cross vision, filter and mapper.
 const TAIL: Duration = Duration::from_millis(1_500);
@@ -34,6 +44,108 @@ const STOP_WAIT: Duration = Duration::from_secs(45);
 /// epoch file (they poll it every 10 ms).
 const START_DELAY: Duration = Duration::from_millis(300);
 const RELAY_PERIOD: Duration = Duration::from_millis(1);
+
+/// A process killed with SIGKILL during a process-runner mission.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Fault {
+    /// Robot index: the `robotN/` folder (the report's robot id is `N + 1`).
+    pub robot: usize,
+    pub process: NodeKind,
+    /// Sensor time of the kill, seconds since the mission start.
+    pub at_s: f64,
+}
+
+impl FromStr for Fault {
+    type Err = String;
+
+    /// `[ROBOT:]PROCESS@SECONDS`, robot index 0 when omitted: `mapper@12`, `1:filter@20.5`.
+    fn from_str(text: &str) -> Result<Fault, String> {
+        let usage = || format!("{text:?}: expected [ROBOT:]PROCESS@SECONDS, e.g. 1:mapper@12");
+        let (target, at) = text.split_once('@').ok_or_else(usage)?;
+        let (robot, process) = match target.split_once(':') {
+            Some((robot, process)) => (robot.parse::<usize>().map_err(|_| usage())?, process),
+            None => (0, target),
+        };
+        let process = NodeKind::parse(process)
+            .ok_or_else(|| format!("{text:?}: unknown process {process:?} (driver, vision, filter, mapper, comms)"))?;
+        let at_s = at.parse::<f64>().ok().filter(|t| t.is_finite() && *t >= 0.0).ok_or_else(usage)?;
+        Ok(Fault { robot, process, at_s })
+    }
+}
+
+/// The faults of a mission, each injected once.
+struct FaultPlan {
+    pending: Vec<Fault>,
+    done: Vec<Value>,
+}
+
+impl FaultPlan {
+    fn new(faults: &[Fault]) -> FaultPlan {
+        let mut pending = faults.to_vec();
+        // Latest first: the next one due is popped from the end.
+        pending.sort_by(|a, b| b.at_s.total_cmp(&a.at_s));
+        FaultPlan { pending, done: Vec::new() }
+    }
+
+    fn inject_due(&mut self, now_s: f64, dirs: &[(PathBuf, PathBuf)], supervisors: &[Child]) {
+        while self.pending.last().is_some_and(|f| f.at_s <= now_s) {
+            let Some(fault) = self.pending.pop() else { return };
+            let record = match (dirs.get(fault.robot), supervisors.get(fault.robot)) {
+                (Some((dir, _)), Some(supervisor)) => kill_process(&fault, dir, supervisor.id(), now_s),
+                _ => json!({"robot": fault.robot, "process": fault.process.name(), "at_s": fault.at_s,
+                            "error": format!("no robot {}", fault.robot)}),
+            };
+            eprintln!("mission: fault {record}");
+            self.done.push(record);
+        }
+    }
+}
+
+/// Own submaps the robot's mapper has persisted (`state/submaps/{index}.subm`), ascending.
+pub fn persisted_submaps(dir: &Path) -> Vec<u32> {
+    let mut indices: Vec<u32> = std::fs::read_dir(dir.join("state").join("submaps"))
+        .map(|entries| {
+            entries
+                .filter_map(|e| e.ok())
+                .filter_map(|e| e.file_name().to_str()?.strip_suffix(".subm")?.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default();
+    indices.sort_unstable();
+    indices
+}
+
+/// The parent pid in `/proc/<pid>/stat` (the field after the parenthesized command name).
+fn parent_pid(pid: u32) -> Option<u32> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let after_name = &stat[stat.rfind(')')? + 1..];
+    after_name.split_whitespace().nth(1)?.parse().ok()
+}
+
+fn kill_process(fault: &Fault, dir: &Path, supervisor_pid: u32, now_s: f64) -> Value {
+    let submaps_before = persisted_submaps(dir);
+    let pid_path = dir.join(PID_DIR).join(fault.process.name());
+    let pid = std::fs::read_to_string(&pid_path).ok().and_then(|t| t.trim().parse::<u32>().ok());
+    let result = match pid {
+        None => Err(format!("no pid in {}", pid_path.display())),
+        // A pid file of an exited process may name an unrelated process by now.
+        Some(pid) if parent_pid(pid) != Some(supervisor_pid) => {
+            Err(format!("pid {pid} is not a child of the supervisor {supervisor_pid}"))
+        }
+        Some(pid) => i32::try_from(pid)
+            .map_err(|e| e.to_string())
+            .and_then(|p| kill(Pid::from_raw(p), Signal::SIGKILL).map_err(|e| e.to_string())),
+    };
+    json!({
+        "robot": fault.robot,
+        "process": fault.process.name(),
+        "at_s": fault.at_s,
+        "killed_at_s": now_s,
+        "pid": pid,
+        "error": result.err(),
+        "submaps_before": submaps_before,
+    })
+}
 
 fn setup(e: impl std::fmt::Display) -> MissionError {
     MissionError::Setup(e.to_string())
@@ -94,7 +206,13 @@ fn robot_config(
             Ok(PeerConfig { robot_id: p as u16, address: address.to_string() })
         })
         .collect::<Result<_, MissionError>>()?;
-    config.link.ground_feed = options.feed.map(|a| a.to_string());
+    // The ground link goes through the relay, which delays it and talks to the ground station.
+    let ground = relay.ground_addr(robot).ok_or_else(|| setup(format!("relay ground socket of robot {robot}")))?;
+    config.link.ground_feed = Some(ground.to_string());
+    config.link.ground_key_file = options.ground_key.clone();
+    if let Some(distance_m) = options.submap_max_distance_m {
+        config.mapper.submap_max_distance_m = distance_m;
+    }
     // The filter's path must not wait behind vision or mapping (DESIGN §3.2): the filter and the
     // sensor driver that feeds it run SCHED_FIFO when the system permits (skipped with a log line
     // otherwise); their bodies are short, so they cannot starve the rest.
@@ -106,7 +224,7 @@ fn robot_config(
 
 /// Files of an earlier run in this folder that must not be mistaken for this run's.
 fn clear_robot_dir(dir: &Path) -> Result<(), MissionError> {
-    for name in ["state", "tasks", READY_DIR] {
+    for name in ["state", "tasks", READY_DIR, PID_DIR] {
         let path = dir.join(name);
         if path.exists() {
             std::fs::remove_dir_all(&path).map_err(|e| MissionError::Io { path: path.clone(), source: e })?;
@@ -147,6 +265,10 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
 
     let radio = radio_config(options.radio);
     let mut relay = Relay::bind(options.robots, &radio, options.seed).map_err(setup)?;
+    let nodes: Vec<protocol::NodeId> = (0..options.robots).map(|r| protocol::NodeId(robot_id(r) as u8)).collect();
+    let ground_log = out.join(super::lockstep::GROUND_FEED_LOG);
+    let ground = crate::nodes::comms::GroundEnd::new(options.feed, &nodes, Some(&ground_log)).map_err(setup)?;
+    relay.enable_ground(&nodes, ground, options.ground_delay_ms).map_err(setup)?;
     let mut configs = Vec::new();
     for robot in 0..options.robots {
         let dir = robot_dir(&out, robot);
@@ -210,8 +332,10 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
     );
 
     let end_ns = epoch_ns + (options.duration_s * 1e9) as u64 + TAIL.as_nanos() as u64;
+    let mut faults = FaultPlan::new(&options.faults);
     while monotonic_ns() < end_ns {
         relay.pump(relay_ms(epoch_ns));
+        faults.inject_due(monotonic_ns().saturating_sub(epoch_ns) as f64 * 1e-9, &configs, &supervisors);
         for (robot, child) in supervisors.iter_mut().enumerate() {
             if let Ok(Some(status)) = child.try_wait() {
                 failure = Some(format!("the supervisor of robot {robot} exited early ({status})"));
@@ -223,6 +347,15 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         std::thread::sleep(RELAY_PERIOD);
     }
     stop_supervisors(&mut supervisors, &mut relay, epoch_ns);
+    if let Some(mut ground) = relay.finish_ground() {
+        ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
+    }
+    let faults_path = out.join("faults.json");
+    if !options.faults.is_empty() {
+        write_json(&faults_path, &Value::Array(faults.done)).map_err(process_error)?;
+    } else if faults_path.exists() {
+        std::fs::remove_file(&faults_path).map_err(|e| MissionError::Io { path: faults_path.clone(), source: e })?;
+    }
     if let Some(failure) = failure {
         return Err(MissionError::Process(failure));
     }
@@ -388,4 +521,44 @@ fn robot_report(
 /// The output folder of robot `robot` of a mission in `out`.
 pub fn robot_dir(out: &Path, robot: usize) -> PathBuf {
     out.join(format!("robot{robot}"))
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    #[test]
+    fn faults_parse_robot_process_and_time() {
+        let f: Fault = "mapper@12".parse().unwrap();
+        assert_eq!(f, Fault { robot: 0, process: NodeKind::Mapper, at_s: 12.0 });
+        let f: Fault = "1:filter@20.5".parse().unwrap();
+        assert_eq!(f, Fault { robot: 1, process: NodeKind::Filter, at_s: 20.5 });
+        for bad in ["mapper", "mapper@", "ground@3", "x:mapper@3", "mapper@-1", "mapper@nan", "1:@3"] {
+            assert!(bad.parse::<Fault>().is_err(), "{bad} parsed");
+        }
+    }
+
+    #[test]
+    fn parent_pid_of_this_process_is_its_parent() {
+        assert_eq!(parent_pid(std::process::id()), Some(std::os::unix::process::parent_id()));
+        assert_eq!(parent_pid(u32::MAX), None);
+    }
+
+    #[test]
+    fn faults_fire_once_in_time_order() {
+        let mut plan = FaultPlan::new(&[
+            Fault { robot: 5, process: NodeKind::Filter, at_s: 2.0 },
+            Fault { robot: 5, process: NodeKind::Mapper, at_s: 1.0 },
+        ]);
+        plan.inject_due(0.5, &[], &[]);
+        assert!(plan.done.is_empty());
+        plan.inject_due(1.5, &[], &[]);
+        assert_eq!(plan.done.len(), 1);
+        assert_eq!(plan.done[0]["process"], "mapper");
+        plan.inject_due(9.0, &[], &[]);
+        plan.inject_due(9.5, &[], &[]);
+        assert_eq!(plan.done.len(), 2);
+        assert_eq!(plan.done[1]["error"], "no robot 5");
+    }
 }

@@ -21,19 +21,40 @@
 //! - Messages from peers (poses, constraints, match records, submaps) are published as
 //!   `ToMapper` with the sender's robot id; the header's `stamp_ns` is the receive time.
 //! - Every link carries a 1 Hz [`Heartbeat`]; a changed `boot_id` resets the peer's channels.
-//! - The ground feed: at 1 Hz a [`protocol::message::Telemetry`] and the robot's current
-//!   [`protocol::message::PoseEstimate`], latest-wins on the ground link, whose own rate cap
-//!   keeps it from ever delaying team traffic.
+//! - The ground feed (its own link and rate cap, so it never delays team traffic; default
+//!   [`GROUND_RATE_BYTES_PER_S`]): at 1 Hz a [`protocol::message::Telemetry`] (v2: with the
+//!   robot's bytes per message class), and everything the ground station needs to build the
+//!   same `TeamGraph` and map a robot has: the robot's **own** poses, constraints, match records
+//!   and submaps (headers carry the frame switches; chunks the payload), as its mapper
+//!   broadcasts them. Peers' data is not relayed: every robot has its own ground link, so the
+//!   peers' data reaches the ground over theirs, and relaying would double the thin link's load.
+//!   The endpoint's priorities keep telemetry and poses ahead of the bulk submap chunks. The
+//!   filter's pose goes to the ground with the telemetry only while the mapper sends none (before
+//!   its graph starts, or while it restarts): otherwise the ground would see poses that are in no
+//!   robot's graph.
 //! - Ground commands are verified by the endpoint (HMAC, see `protocol::auth`), checked against a
 //!   replay guard when executed (persisted to `CommsConfig::replay_state` before execution, so a
-//!   command recorded before a restart stays rejected after it) and always answered with a [`CommandAck`]: `SetMode` is executed
-//!   (the mode is reported in telemetry), `GoToWaypoint` and `SetParameter` are acknowledged
-//!   `Accepted` but forwarded to nobody yet (no process consumes them), everything else is
-//!   `Invalid`. Forged commands never reach the node (the endpoint drops them; counted).
+//!   command recorded before a restart stays rejected after it) and always answered with a
+//!   [`CommandAck`] that says what really happened:
+//!   - `SetMode`: `Executed` (the mode is reported in telemetry and heartbeats);
+//!   - `GoToWaypoint`: `Accepted` and kept ([`CommsNode::last_waypoint`], counted), but no
+//!     process drives to it: the simulated rovers follow scripted paths. `Refused` in `Safe`;
+//!   - `SetParameter`: `Executed` for the comms node's own parameters
+//!     ([`RUNTIME_PARAMETERS`]), `Invalid` for any other name or a value out of range;
+//!   - `RequestResend`: the robot's own submap's header and chunks (all, or the range) are queued
+//!     again on the link the request came from: `Accepted`; `Invalid` for a submap this node did
+//!     not send to the ground or no longer holds (the last [`RESEND_STORE_BYTES`] are kept), or a
+//!     bad range;
+//!   - `StartRecording`/`StopRecording`: `Refused`: bus recording is chosen at start
+//!     (`recording.enabled` in `rover.toml`), not at run time.
+//!
+//!   Forged commands never reach the node (the endpoint drops them; counted).
 
 mod driver;
 mod ground;
+mod ground_end;
 pub mod replay;
+mod resend;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::{Path, PathBuf};
@@ -41,11 +62,42 @@ use std::path::{Path, PathBuf};
 use msgs::{FilterStateMsg, TaskStatsMsg, TeamHeader};
 use protocol::delivery::{DEFAULT_WINDOW, Delivered, Endpoint, EndpointConfig, EndpointStats, RtoConfig, SendError};
 use protocol::frame::Framing;
-use protocol::message::{CommandAck, CommandKind, CommandOutcome, Heartbeat, Mode};
+use protocol::message::{CommandAck, CommandKind, CommandOutcome, Heartbeat, Mode, ParamValue};
 use protocol::{AnyMessage, AuthKey, Delivery, MAX_PACKET_BYTES, MessageKey, NodeId, Priority, ReplayGuard, RobotId};
 
 pub use driver::{DriverStats, LinkDriver, step_duplex};
+pub use ground_end::{GroundEnd, GroundEndError, GroundEndStats};
 pub use replay::ReplayStateError;
+pub use resend::RESEND_STORE_BYTES;
+
+/// The ground feed's default rate cap, wire bytes/s (96 kbit/s): a thin per-robot share of the
+/// relayed ground link (the thesis's had a 4 s round trip, §7.2, §9.2; its rate here is this
+/// project's assumption, like the 16 kB/s of `hal::emulator::EmulatorConfig::moon_earth`) that
+/// carries the telemetry, the graph inputs and, at the lowest priority, the robot's submaps.
+pub const GROUND_RATE_BYTES_PER_S: u64 = 12_000;
+
+/// Initial retransmission timeout of a ground link: the thesis's ground link has a 4 s round
+/// trip, and the default 1 s would resend everything in flight before the first RTT sample.
+pub const GROUND_INITIAL_RTO_MS: u64 = 4_000;
+
+/// How long without an own pose from the mapper (it sends one a second) before the filter's pose
+/// goes to the ground instead.
+const MAPPER_QUIET_NS: u64 = 3_000_000_000;
+
+/// Parameters a `SetParameter` command can change at run time: `(name, unit, min, max)`,
+/// integer values (a float is rounded).
+pub const RUNTIME_PARAMETERS: [(&str, &str, i64, i64); 2] =
+    [("comms.telemetry_period_ms", "ms", 100, 60_000), ("comms.heartbeat_period_ms", "ms", 100, 60_000)];
+
+/// A waypoint the ground sent (in the robot's own global frame), as accepted.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Waypoint {
+    pub command_id: u32,
+    pub x_m: f64,
+    pub y_m: f64,
+    pub z_m: f64,
+    pub speed_mps: f32,
+}
 
 use crate::nodes::{Message, Node, NodeError, Outbox, Topic};
 
@@ -96,11 +148,12 @@ impl LinkConfig {
         }
     }
 
-    /// The ground-station link.
+    /// The ground-station link (initial RTO [`GROUND_INITIAL_RTO_MS`]).
     pub fn ground(id: LinkId, framing: Framing, rate_bytes_per_s: u64) -> Self {
         LinkConfig {
             role: LinkRole::Ground,
             peers: Vec::new(),
+            rto: RtoConfig { initial_ms: GROUND_INITIAL_RTO_MS, ..RtoConfig::default() },
             ..Self::team(id, "ground", framing, rate_bytes_per_s, Vec::new())
         }
     }
@@ -238,6 +291,11 @@ pub struct CommandCounts {
     pub executed: u64,
     pub accepted: u64,
     pub invalid: u64,
+    /// Authentic and valid but not run (`Safe` mode, recording commands).
+    pub refused: u64,
+    /// Of the accepted, waypoints (kept, not driven to) and resend requests (queued).
+    pub waypoints: u64,
+    pub resends: u64,
     /// Authentic but replayed (counter not above the last executed one).
     pub replayed: u64,
     /// Refused because the replay guard could not be persisted.
@@ -248,8 +306,10 @@ pub struct CommandCounts {
 /// Counters for the mission report.
 #[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
 pub struct CommsStats {
-    /// Per `protocol` message type (`MessageKey` name), packets put on the links.
+    /// Per `protocol` message type (`MessageKey` name), packets put on the links (all links).
     pub sent_by_class: BTreeMap<&'static str, ClassTraffic>,
+    /// Of these, the packets put on the ground link.
+    pub ground_sent_by_class: BTreeMap<&'static str, ClassTraffic>,
     /// Per message type, valid packets received (duplicates included).
     pub received_by_class: BTreeMap<&'static str, ClassTraffic>,
     pub packets_sent: u64,
@@ -382,6 +442,11 @@ pub struct CommsNode {
     replay: ReplayGuard<{ replay::MAX_SENDERS }>,
     replay_state: Option<PathBuf>,
     feed: ground::GroundFeed,
+    /// When the mapper last sent an own pose (sensor time), to keep the filter's out of the feed.
+    mapper_pose_ns: Option<u64>,
+    /// Own submaps as sent to the ground, for resend requests.
+    resend: resend::SubmapStore,
+    last_waypoint: Option<Waypoint>,
     /// Received messages for the mapper: header and encoded packet.
     inbox: VecDeque<(TeamHeader, Vec<u8>)>,
     /// Emptied inbox buffers, reused so a warmed-up node does not allocate per message.
@@ -457,6 +522,9 @@ impl CommsNode {
             },
             replay_state: config.replay_state,
             feed: ground::GroundFeed::new(config.cpu_cores),
+            mapper_pose_ns: None,
+            resend: resend::SubmapStore::new(RESEND_STORE_BYTES),
+            last_waypoint: None,
             inbox: VecDeque::new(),
             spare: Vec::new(),
             tx_buf: Box::new([0; MAX_PACKET_BYTES]),
@@ -475,6 +543,21 @@ impl CommsNode {
     /// The operating mode (initial, or as last set by a ground command).
     pub fn mode(&self) -> Mode {
         self.mode
+    }
+
+    /// The last waypoint the ground sent and the node accepted (nothing drives to it here).
+    pub fn last_waypoint(&self) -> Option<Waypoint> {
+        self.last_waypoint
+    }
+
+    /// The telemetry period (initial, or as last set by a ground command), ns.
+    pub fn telemetry_period_ns(&self) -> u64 {
+        self.telemetry_period_ns
+    }
+
+    /// The id of the ground link, if the node has one.
+    pub fn ground_link_id(&self) -> Option<LinkId> {
+        self.ground_link.and_then(|i| self.links.get(i)).map(|l| l.config.id)
     }
 
     /// Counters for the mission report (endpoint counters folded in).
@@ -540,7 +623,11 @@ impl CommsNode {
         let retransmission = link.endpoint.stats().retransmissions > retransmissions_before;
         let packet = &self.tx_buf[..len];
         let wire = link.config.framing.wire_bytes(len);
-        self.stats.sent_by_class.entry(class_name(packet)).or_default().add(len, wire, retransmission);
+        let class = class_name(packet);
+        self.stats.sent_by_class.entry(class).or_default().add(len, wire, retransmission);
+        if link.config.role == LinkRole::Ground {
+            self.stats.ground_sent_by_class.entry(class).or_default().add(len, wire, retransmission);
+        }
         self.stats.packets_sent += 1;
         self.stats.retransmissions += u64::from(retransmission);
         Some(len)
@@ -644,40 +731,91 @@ impl CommsNode {
         // Persisted before execution: a crash after this point loses the command, never runs it
         // twice. If the guard cannot be saved, the command is not executed.
         let saved = accepted && self.replay_state.as_ref().is_none_or(|path| replay::save(path, &self.replay).is_ok());
-        let counts = &mut self.stats.commands;
+        let now_ms = ns_to_ms(now_ns);
         let outcome = if !accepted {
-            counts.replayed += 1;
+            self.stats.commands.replayed += 1;
             self.stats.auth_rejections += 1;
             CommandOutcome::Refused
         } else if !saved {
-            counts.unsaved += 1;
+            self.stats.commands.unsaved += 1;
             CommandOutcome::Refused
-        } else if command.target != self.robot {
-            counts.invalid += 1;
-            CommandOutcome::Invalid
         } else {
-            match command.kind {
-                CommandKind::SetMode(mode) => {
-                    self.mode = mode;
-                    counts.executed += 1;
-                    CommandOutcome::Executed
-                }
-                CommandKind::GoToWaypoint { .. } | CommandKind::SetParameter { .. } => {
-                    counts.accepted += 1;
-                    CommandOutcome::Accepted
-                }
-                _ => {
-                    counts.invalid += 1;
-                    CommandOutcome::Invalid
-                }
+            let outcome = if command.target != self.robot {
+                CommandOutcome::Invalid
+            } else {
+                self.execute(index, sender, command.id, &command.kind, now_ms)
+            };
+            let counts = &mut self.stats.commands;
+            match outcome {
+                CommandOutcome::Executed => counts.executed += 1,
+                CommandOutcome::Accepted => counts.accepted += 1,
+                CommandOutcome::Invalid => counts.invalid += 1,
+                CommandOutcome::Refused => counts.refused += 1,
             }
+            outcome
         };
         let ack = AnyMessage::from(CommandAck { robot: self.robot, command_id: command.id, outcome });
         let max_backlog = self.max_backlog;
         if let Some(link) = self.links.get_mut(index) {
-            link.send(ns_to_ms(now_ns), sender, &ack, max_backlog, &mut self.stats.drops);
+            link.send(now_ms, sender, &ack, max_backlog, &mut self.stats.drops);
             self.stats.commands.acks_sent += 1;
         }
+    }
+
+    /// Carries out an authentic command for this robot (see the module documentation).
+    fn execute(&mut self, index: usize, sender: NodeId, id: u32, kind: &CommandKind, now_ms: u64) -> CommandOutcome {
+        match kind {
+            CommandKind::SetMode(mode) => {
+                self.mode = *mode;
+                CommandOutcome::Executed
+            }
+            CommandKind::GoToWaypoint { .. } if self.mode == Mode::Safe => CommandOutcome::Refused,
+            &CommandKind::GoToWaypoint { x_m, y_m, z_m, speed_mps } => {
+                let finite = [x_m, y_m, z_m, f64::from(speed_mps)].iter().all(|v| v.is_finite());
+                if !finite || speed_mps < 0.0 {
+                    return CommandOutcome::Invalid;
+                }
+                self.last_waypoint = Some(Waypoint { command_id: id, x_m, y_m, z_m, speed_mps });
+                self.stats.commands.waypoints += 1;
+                CommandOutcome::Accepted
+            }
+            CommandKind::SetParameter { name, value } => self.set_parameter(name, *value),
+            CommandKind::RequestResend { submap, chunks } => {
+                if submap.robot != self.robot {
+                    return CommandOutcome::Invalid;
+                }
+                let Some(messages) = self.resend.resend(*submap, *chunks) else { return CommandOutcome::Invalid };
+                let max_backlog = self.max_backlog;
+                if let Some(link) = self.links.get_mut(index) {
+                    for message in &messages {
+                        link.send(now_ms, sender, message, max_backlog, &mut self.stats.drops);
+                    }
+                }
+                self.stats.commands.resends += 1;
+                CommandOutcome::Accepted
+            }
+            CommandKind::StartRecording { .. } | CommandKind::StopRecording => CommandOutcome::Refused,
+        }
+    }
+
+    fn set_parameter(&mut self, name: &str, value: ParamValue) -> CommandOutcome {
+        let Some(&(_, _, min, max)) = RUNTIME_PARAMETERS.iter().find(|(known, ..)| *known == name) else {
+            return CommandOutcome::Invalid;
+        };
+        let value = match value {
+            ParamValue::Int(v) => v,
+            ParamValue::Float(v) if v.is_finite() && v.abs() < 1e15 => v.round() as i64,
+            _ => return CommandOutcome::Invalid,
+        };
+        if !(min..=max).contains(&value) {
+            return CommandOutcome::Invalid;
+        }
+        let period_ns = value.unsigned_abs() * 1_000_000;
+        match name {
+            "comms.telemetry_period_ms" => self.telemetry_period_ns = period_ns,
+            _ => self.heartbeat_period_ns = period_ns,
+        }
+        CommandOutcome::Executed
     }
 
     /// Publishes what arrived for the mapper.
@@ -707,6 +845,27 @@ impl CommsNode {
         }
         let now_ms = ns_to_ms(now_ns);
         let max_backlog = self.max_backlog;
+        // Only what this robot produced goes to the ground (module documentation).
+        let own = packet.header.source == NodeId::from(self.robot);
+        let for_ground = own
+            && header.robot_id == TeamHeader::BROADCAST
+            && self.ground_link.is_some()
+            && matches!(
+                message,
+                AnyMessage::PoseEstimate(_)
+                    | AnyMessage::Constraint(_)
+                    | AnyMessage::MatchAttempt(_)
+                    | AnyMessage::SubmapHeader(_)
+                    | AnyMessage::SubmapChunk(_)
+            );
+        if for_ground {
+            match &message {
+                AnyMessage::PoseEstimate(_) => self.mapper_pose_ns = Some(now_ns),
+                AnyMessage::SubmapHeader(h) => self.resend.on_header(h),
+                AnyMessage::SubmapChunk(c) => self.resend.on_chunk(c),
+                _ => {}
+            }
+        }
         let drops = &mut self.stats.drops;
         if header.robot_id == TeamHeader::BROADCAST {
             let latest = message.delivery() == Delivery::LatestWins;
@@ -719,10 +878,7 @@ impl CommsNode {
                             link.send(now_ms, peer, &message, max_backlog, drops);
                         }
                     }
-                    // The ground sees the team's poses; submaps would crowd out its own feed.
-                    LinkRole::Ground if matches!(message, AnyMessage::PoseEstimate(_)) => {
-                        link.send(now_ms, NodeId::GROUND, &message, max_backlog, drops)
-                    }
+                    LinkRole::Ground if for_ground => link.send(now_ms, NodeId::GROUND, &message, max_backlog, drops),
                     LinkRole::Ground => {}
                 }
             }
@@ -780,8 +936,10 @@ impl CommsNode {
                 report: &mut l.report,
             })
             .collect();
-        let telemetry = self.feed.telemetry(self.robot, now_ns, period_ns, self.mode, links, auth_rejections);
-        let pose = self.feed.pose_estimate(self.robot);
+        let counters = ground::Counters { links, auth_rejections, sent_by_class: &self.stats.sent_by_class };
+        let telemetry = self.feed.telemetry(self.robot, now_ns, period_ns, self.mode, counters);
+        let mapper_quiet = self.mapper_pose_ns.is_none_or(|t| now_ns.saturating_sub(t) > MAPPER_QUIET_NS);
+        let pose = if mapper_quiet { self.feed.pose_estimate(self.robot) } else { None };
         let Some(index) = self.ground_link else { return };
         let max_backlog = self.max_backlog;
         let Some(link) = self.links.get_mut(index) else { return };

@@ -14,8 +14,24 @@
 //!   next state is in the new frame. A request for another frame is ignored and counted.
 //!
 //! Bad payloads (non-finite values, a filter error on one input) are counted and skipped.
+//!
+//! # Restarts
+//! With [`FilterNodeOptions::checkpoint_path`] the node writes a [`checkpoint`] every
+//! [`FilterNodeOptions::checkpoint_period_ns`] of IMU time and right after every frame switch
+//! (before the switch is published, so the mapper never sees a frame the checkpoint does not
+//! know). [`FilterNode::resume`] in a restarted process restores it: same frame id and local
+//! frame (the mapper's submap chain goes on), clones and covariance, the original
+//! initialization stamp and the carried counters. The IMU samples published meanwhile arrive
+//! from the topic's history (`crate::bus::qos`): those the checkpoint already holds are skipped
+//! (`imu_replayed`), the rest are integrated. Samples older than the history are lost: counted
+//! (`imu_lost`, `restart_imu_lost`), and the filter propagates over the gap with the held sample
+//! and an inflated covariance ([`GAP_SPEED_MPS`], [`GAP_YAW_RATE_RADPS`]). Not restored: the VO
+//! results waiting for their due time and the standstill detector's window.
+
+pub mod checkpoint;
 
 use std::collections::VecDeque;
+use std::path::PathBuf;
 
 use filter::{
     Filter, FilterConfig, FilterHealth, RelativePoseMeasurement, StandstillConfig, StandstillDetector, UpdateOutcome,
@@ -34,6 +50,13 @@ const ZUPT_PERIOD_NS: u64 = 100_000_000;
 /// VO results waiting for their due time; beyond this (a vision far ahead of the IMU stream) the
 /// oldest is dropped and counted. 2.5 s of frames at 10 Hz with the default 250 ms latency.
 const PENDING_VO_MAX: usize = 32;
+/// Speed bound of the rover while the filter was away (its drive speed, `sim`'s 0.3 m/s, with
+/// margin): position variance grows by `(speed · gap)²`, velocity variance by `speed²`.
+pub const GAP_SPEED_MPS: f64 = 0.5;
+/// Turn-rate bound over a gap: yaw variance grows by `(rate · gap)²`.
+pub const GAP_YAW_RATE_RADPS: f64 = 0.3;
+/// Default checkpoint period (IMU time).
+pub const CHECKPOINT_PERIOD_NS: u64 = 250_000_000;
 
 /// The filter node's configuration (the filter part of [`VioOptions`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -46,6 +69,9 @@ pub struct FilterNodeOptions {
     pub init_window_ns: u64,
     pub vo_updates: VoUpdates,
     pub vo_covariance_scale: f64,
+    /// Where the checkpoint goes (see the module docs); `None`: no checkpoints.
+    pub checkpoint_path: Option<PathBuf>,
+    pub checkpoint_period_ns: u64,
 }
 
 impl FilterNodeOptions {
@@ -58,6 +84,8 @@ impl FilterNodeOptions {
             init_window_ns: options.init_window_ns,
             vo_updates: options.vo_updates,
             vo_covariance_scale: options.vo_covariance_scale,
+            checkpoint_path: None,
+            checkpoint_period_ns: CHECKPOINT_PERIOD_NS,
         }
     }
 }
@@ -93,6 +121,18 @@ pub struct FilterNodeSummary {
     pub bad_messages: u64,
     pub filter_errors: u64,
     pub filter_health: Option<FilterHealth>,
+    /// Starts from a checkpoint (over all lives of the process).
+    pub resumes: u64,
+    /// Stamp of the checkpoint this life resumed from.
+    pub resumed_from_ns: Option<u64>,
+    /// Resumed: from the checkpoint's stamp to the first new IMU sample.
+    pub restart_gap_ns: Option<u64>,
+    /// Resumed: samples between the checkpoint and the first new one that never arrived.
+    pub restart_imu_lost: u64,
+    /// Resumed: samples from the topic's history that the checkpoint already held.
+    pub imu_replayed: u64,
+    pub checkpoints_written: u64,
+    pub checkpoint_errors: u64,
 }
 
 /// A VO result waiting for its due time, in the filter's terms.
@@ -129,6 +169,13 @@ pub struct FilterNode {
     last_imu_ns: Option<u64>,
     last_vo: Option<LastVo>,
     summary: FilterNodeSummary,
+    /// The mission epoch written into checkpoints ([`FilterNode::resume`]).
+    run_id: u64,
+    /// IMU stamp of the last checkpoint written.
+    last_checkpoint_ns: Option<u64>,
+    /// Resumed and no new IMU sample yet: older ones are history replays.
+    bridging: bool,
+    checkpoint_bytes: Vec<u8>,
 }
 
 impl FilterNode {
@@ -147,6 +194,101 @@ impl FilterNode {
             last_imu_ns: None,
             last_vo: None,
             summary: FilterNodeSummary::default(),
+            run_id: 0,
+            last_checkpoint_ns: None,
+            bridging: false,
+            checkpoint_bytes: Vec::new(),
+        }
+    }
+
+    /// Sets the run (the mission epoch) and resumes from the checkpoint if there is one of this
+    /// run. Returns the checkpoint's stamp when it resumed; `Ok(None)` for a fresh start (no
+    /// checkpoint path, no file, or another run's file, which the next checkpoint replaces).
+    /// A damaged file is an error; the node then starts fresh.
+    pub fn resume(&mut self, run_id: u64) -> Result<Option<u64>, checkpoint::CheckpointError> {
+        self.run_id = run_id;
+        let Some(path) = &self.options.checkpoint_path else { return Ok(None) };
+        let Some(c) = checkpoint::read(path)? else { return Ok(None) };
+        if c.run_id != run_id {
+            return Ok(None);
+        }
+        self.filter
+            .restore(&c.snapshot)
+            .map_err(|_| checkpoint::CheckpointError::Invalid("the filter refused the snapshot"))?;
+        let k = c.counters;
+        self.summary.imu_received = k.imu_received;
+        self.summary.imu_lost = k.imu_lost;
+        self.summary.imu_rejected = k.imu_rejected;
+        self.summary.vo_received = k.vo_received;
+        self.summary.vo_updates_applied = k.vo_updates_applied;
+        self.summary.wheel_updates_applied = k.wheel_updates_applied;
+        self.summary.frame_switches = k.frame_switches;
+        self.summary.resumes = k.resumes + 1;
+        self.summary.initialized_ns = Some(c.initialized_ns);
+        self.summary.resumed_from_ns = Some(c.snapshot.stamp_ns);
+        self.last_imu_sequence = Some(c.imu_sequence);
+        self.last_imu_ns = Some(c.snapshot.last_imu.map_or(c.snapshot.stamp_ns, |s| s.stamp_ns));
+        self.last_checkpoint_ns = Some(c.snapshot.stamp_ns);
+        self.bridging = true;
+        Ok(Some(c.snapshot.stamp_ns))
+    }
+
+    /// Writes the checkpoint now (a no-op without a path or before initialization). A failed
+    /// write is counted; the previous checkpoint stays.
+    fn write_checkpoint(&mut self) {
+        let Some(path) = &self.options.checkpoint_path else { return };
+        let Some(snapshot) = self.filter.snapshot() else { return };
+        let s = &self.summary;
+        let c = checkpoint::FilterCheckpoint {
+            run_id: self.run_id,
+            imu_sequence: self.last_imu_sequence.unwrap_or(0),
+            initialized_ns: s.initialized_ns.unwrap_or(snapshot.stamp_ns),
+            counters: checkpoint::CarriedCounters {
+                imu_received: s.imu_received,
+                imu_lost: s.imu_lost,
+                imu_rejected: s.imu_rejected,
+                vo_received: s.vo_received,
+                vo_updates_applied: s.vo_updates_applied,
+                wheel_updates_applied: s.wheel_updates_applied,
+                frame_switches: s.frame_switches,
+                resumes: s.resumes,
+            },
+            snapshot,
+        };
+        self.last_checkpoint_ns = Some(c.snapshot.stamp_ns);
+        checkpoint::encode(&c, &mut self.checkpoint_bytes);
+        match checkpoint::write_atomic(path, &self.checkpoint_bytes) {
+            Ok(()) => self.summary.checkpoints_written += 1,
+            Err(_) => self.summary.checkpoint_errors += 1,
+        }
+    }
+
+    fn checkpoint_if_due(&mut self, stamp_ns: u64) {
+        if self.options.checkpoint_path.is_some()
+            && self
+                .last_checkpoint_ns
+                .is_none_or(|last| stamp_ns >= last.saturating_add(self.options.checkpoint_period_ns))
+        {
+            self.write_checkpoint();
+        }
+    }
+
+    /// The first sample after a resume that the history did not deliver: the motion over the
+    /// gap is unknown beyond the held sample, so the covariance grows by the rover's bounds.
+    fn inflate_for_gap(&mut self, stamp_ns: u64) {
+        let Some(mut snapshot) = self.filter.snapshot() else { return };
+        let gap_s = stamp_ns.saturating_sub(snapshot.stamp_ns) as f64 * 1e-9;
+        let position = (GAP_SPEED_MPS * gap_s).powi(2);
+        let velocity = GAP_SPEED_MPS.powi(2);
+        let yaw = (GAP_YAW_RATE_RADPS * gap_s).powi(2);
+        // Core error state order (δp, δv, δθ, …); δθ is global, so z is the yaw.
+        for i in 0..3 {
+            snapshot.covariance[(i, i)] += position;
+            snapshot.covariance[(3 + i, 3 + i)] += velocity;
+        }
+        snapshot.covariance[(8, 8)] += yaw;
+        if self.filter.restore(&snapshot).is_err() {
+            self.summary.filter_errors += 1;
         }
     }
 
@@ -179,15 +321,28 @@ impl FilterNode {
     }
 
     fn on_imu(&mut self, message: &ImuMsg, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        if self.bridging && self.last_imu_sequence.is_some_and(|last| message.sequence <= last) {
+            self.summary.imu_replayed += 1;
+            return Ok(());
+        }
         self.summary.imu_received += 1;
+        let mut lost = 0;
         if let Some(last) = self.last_imu_sequence {
             if message.sequence <= last {
                 self.summary.imu_rejected += 1;
                 return Ok(());
             }
-            self.summary.imu_lost += message.sequence - last - 1;
+            lost = message.sequence - last - 1;
+            self.summary.imu_lost += lost;
         }
         self.last_imu_sequence = Some(message.sequence);
+        if std::mem::take(&mut self.bridging) {
+            self.summary.restart_imu_lost = lost;
+            self.summary.restart_gap_ns = Some(message.stamp_ns.saturating_sub(self.filter.stamp_ns()));
+            if lost > 0 {
+                self.inflate_for_gap(message.stamp_ns);
+            }
+        }
         let finite = message.gyro_radps.iter().chain(&message.accel_mps2).all(|v| v.is_finite());
         if !finite || self.last_imu_ns.is_some_and(|last| message.stamp_ns < last) {
             self.summary.imu_rejected += 1;
@@ -207,6 +362,7 @@ impl FilterNode {
             self.last_imu_ns = Some(sample.stamp_ns);
             self.apply_due_vo(sample.stamp_ns);
             self.apply_zupt(sample.stamp_ns);
+            self.checkpoint_if_due(sample.stamp_ns);
         }
         let state = self.state_message_at(sample.stamp_ns);
         out.publish(Message::FilterState(&state))
@@ -444,6 +600,7 @@ impl FilterNode {
             }
         };
         self.summary.frame_switches += 1;
+        self.write_checkpoint();
         let message = FrameSwitchMsg {
             stamp_ns: switch.stamp_ns,
             t_old_new: Pose::from_isometry(&switch.t_old_new),
@@ -478,5 +635,104 @@ impl Node for FilterNode {
 
     fn on_tick(&mut self, _now_ns: u64, _out: &mut dyn Outbox) -> Result<(), NodeError> {
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    /// Keeps the last state published.
+    #[derive(Default)]
+    struct LastState(Option<FilterStateMsg>);
+
+    impl Outbox for LastState {
+        fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
+            if let Message::FilterState(s) = message {
+                self.0 = Some(*s);
+            }
+            Ok(())
+        }
+    }
+
+    const PERIOD_NS: u64 = 5_000_000;
+
+    /// At rest for 1 s (initialization), then accelerating and turning.
+    fn imu(sequence: u64, gravity_mps2: f64) -> ImuMsg {
+        let moving = sequence >= 200;
+        ImuMsg {
+            stamp_ns: sequence * PERIOD_NS,
+            sequence,
+            gyro_radps: [0.0, 0.0, if moving { 0.05 } else { 0.0 }],
+            accel_mps2: [if moving { 0.1 } else { 0.0 }, 0.0, gravity_mps2],
+        }
+    }
+
+    fn node(path: &std::path::Path) -> FilterNode {
+        let mut options = FilterNodeOptions::from_vio(&VioOptions::default());
+        options.checkpoint_path = Some(path.to_owned());
+        FilterNode::new(options)
+    }
+
+    fn feed(node: &mut FilterNode, sequences: std::ops::Range<u64>, out: &mut LastState) {
+        let g = node.options.filter.gravity_mps2;
+        for k in sequences {
+            node.on_message(Message::Imu(&imu(k, g)), out).unwrap();
+        }
+    }
+
+    #[test]
+    fn a_restarted_node_resumes_from_its_checkpoint_and_skips_replayed_samples() {
+        let dir = std::env::temp_dir().join(format!("onboard-filter-resume-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("filter.ckpt");
+        let _ = std::fs::remove_file(&path);
+        let mut original = node(&path);
+        assert_eq!(original.resume(77).unwrap(), None);
+        let mut out = LastState::default();
+        feed(&mut original, 0..400, &mut out);
+        let checkpoint = checkpoint::read(&path).unwrap().unwrap();
+        // Written every 0.25 s (50 samples): the last one within the last 50 samples.
+        let written_at = checkpoint.imu_sequence;
+        assert!((350..400).contains(&written_at), "checkpoint at sample {written_at}");
+
+        // The original goes on to sample 499 (as if it had died, without checkpoints); a restarted
+        // node gets the history 300..500.
+        original.options.checkpoint_path = None;
+        feed(&mut original, 400..500, &mut out);
+        let expected = out.0.unwrap();
+        let mut restarted = node(&path);
+        assert_eq!(restarted.resume(77).unwrap(), Some(checkpoint.snapshot.stamp_ns));
+        let mut out2 = LastState::default();
+        feed(&mut restarted, 300..500, &mut out2);
+        let s = restarted.summary();
+        assert_eq!(s.imu_replayed, written_at + 1 - 300);
+        assert_eq!((s.imu_received, s.imu_lost, s.restart_imu_lost, s.resumes), (500, 0, 0, 1));
+        assert_eq!(s.restart_gap_ns, Some(PERIOD_NS));
+        assert_eq!(s.initialized_ns, original.summary().initialized_ns);
+        let resumed = out2.0.unwrap();
+        assert_eq!(resumed.frame_id, expected.frame_id);
+        assert_eq!(resumed.t_local_body, expected.t_local_body);
+        assert_eq!(resumed.pose_covariance, expected.pose_covariance);
+
+        // A gap beyond the history: counted, and the covariance grows for the unknown motion.
+        let written_at = checkpoint::read(&path).unwrap().unwrap().imu_sequence;
+        let mut gapped = node(&path);
+        gapped.resume(77).unwrap();
+        let mut out3 = LastState::default();
+        feed(&mut gapped, 600..601, &mut out3);
+        let s = gapped.summary();
+        assert_eq!(s.restart_imu_lost, 600 - written_at - 1);
+        assert_eq!(s.imu_lost, 600 - written_at - 1);
+        let gap_s = (600 - written_at) as f64 * PERIOD_NS as f64 * 1e-9;
+        let sigma_x = out3.0.unwrap().pose_covariance[0].sqrt();
+        assert!(sigma_x >= GAP_SPEED_MPS * gap_s, "position sigma {sigma_x} after a {gap_s} s gap");
+
+        // Another run's checkpoint is not resumed.
+        let mut other_run = node(&path);
+        assert_eq!(other_run.resume(78).unwrap(), None);
+        assert!(!other_run.filter().is_initialized());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -14,7 +14,10 @@
 //! Written when a process ends on SIGTERM: `tasks/<process>.json` (every process), the driver's
 //! `truth_world.tum`, the filter's `filter_summary.json`, the mapper's map, graph, `estimate.tum`
 //! and `mapper_status.json`, the comms' `comms_stats.json`; the supervisor's `supervisor.json`.
-//! A restarted process overwrites its predecessor's files: they describe its last life.
+//! A restarted process overwrites its predecessor's files: they describe its last life (the
+//! filter carries its main counters across lives in its checkpoint, `state/filter.ckpt`).
+//! `pids/<process>` holds the pid of the running process (written by the supervisor at every
+//! start, removed when it is reaped): the mission's fault injection uses it.
 //!
 //! # Signals
 //! SIGTERM and SIGINT are blocked in the process and taken by a thread in `sigwait`
@@ -50,6 +53,8 @@ pub const EPOCH_ENV: &str = "ONBOARD_EPOCH_NS";
 pub const EPOCH_FILE_ENV: &str = "ONBOARD_EPOCH_FILE";
 /// Folder in the robot's output folder where each process leaves `<process>` once set up.
 pub const READY_DIR: &str = "ready";
+/// Folder in the robot's output folder with one file per running process: its pid.
+pub const PID_DIR: &str = "pids";
 
 /// Why a process of the runner failed.
 #[derive(Debug, thiserror::Error)]
@@ -209,7 +214,7 @@ pub fn world_options(config: &RoverConfig) -> MissionOptions {
         runner: Runner::Process,
         radio: RadioPreset::SerialRadio,
         truth_loop_closures: false,
-        feed: None,
+        ..MissionOptions::default()
     }
 }
 

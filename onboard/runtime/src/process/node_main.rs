@@ -6,14 +6,22 @@
 //! time of the release (the comms process also pumps its UDP links). About once a second it
 //! publishes its task's [`msgs::TaskStatsMsg`]. On SIGTERM it finishes the current release, writes
 //! its files (module docs of [`crate::process`]) and exits 0.
+//!
+//! Only the driver builds the simulated world; vision, filter and mapper need the scenario alone
+//! (camera, IMU model), so they are back within a fraction of a second after a restart. The
+//! filter checkpoints into `state/filter.ckpt` and resumes from it once it knows the epoch
+//! ([`FilterNode::resume`]). The mapper's submap policy comes from the configuration's
+//! `[mapper]`.
 
 use std::path::Path;
 use std::sync::Arc;
+use std::time::Instant;
 
 use hal::link::Link;
 use hal::udp::UdpLink;
 use protocol::RobotId;
 use serde_json::{Value, json};
+use sim::scenario::{Scenario, ScenarioOptions};
 use sim::world::World;
 
 use super::{
@@ -31,7 +39,7 @@ use crate::nodes::vision::{VisionNode, VisionNodeOptions};
 use crate::nodes::{Message, Node, Outbox};
 use crate::task::rt::{self, RtReport};
 use crate::task::{FixedRateTask, RunEnd};
-use crate::team_record::sim_vio_options;
+use crate::team_record::scenario_vio_options;
 use hal::sensor::StereoCalibration;
 
 /// Task telemetry period.
@@ -39,8 +47,6 @@ const STATS_PERIOD_NS: u64 = 1_000_000_000;
 /// Ground link id (team links start at 1), as in the lockstep mission.
 const GROUND_LINK: LinkId = LinkId(0);
 const TEAM_LINK: LinkId = LinkId(1);
-/// The ground feed's share of the link (bytes/s), as in the lockstep mission.
-const GROUND_RATE_BYTES_PER_S: u64 = 2_000;
 
 /// A built node with what its process needs besides the bus.
 enum Hosted {
@@ -82,21 +88,41 @@ fn driver_node(world: &Arc<World>, config: &RoverConfig) -> Result<DriverNode, P
     Ok(DriverNode::new(Arc::clone(world), usize::from(config.robot.id), DriverOptions { end_stamp_ns: Some(end_ns) })?)
 }
 
-fn camera_calibration(world: &Arc<World>, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
-    driver_node(world, config)?
-        .stereo_calibration()
-        .ok_or_else(|| ProcessError::Setup(format!("robot {} has no stereo camera", config.robot.id)))
+/// The scenario of [`world`] without building the world (terrain, shadows: seconds of CPU): all
+/// that vision, filter and mapper need, so that they are back within a fraction of a second
+/// after a restart.
+fn scenario(config: &RoverConfig) -> Result<Scenario, ProcessError> {
+    let w = world_options(config);
+    let options = ScenarioOptions {
+        robots: w.robots,
+        duration_s: w.duration_s,
+        seed: w.seed,
+        downscale: w.downscale,
+        world_size_m: None,
+        flyer: false,
+    };
+    sim::scenario::preset(&w.scenario, &options).map_err(|e| ProcessError::Setup(format!("scenario: {e}")))
 }
 
-fn vision_node(world: &Arc<World>, config: &RoverConfig) -> Result<VisionNode, ProcessError> {
-    let calibration = camera_calibration(world, config)?;
-    Ok(VisionNode::new(&calibration, VisionNodeOptions::from_vio(&sim_vio_options(world, true)))?)
+/// The raw calibration the driver's pairs have (`SimSensorSource::stereo_calibration`).
+fn camera_calibration(scenario: &Scenario, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
+    let setup = scenario
+        .robots
+        .get(usize::from(config.robot.id))
+        .ok_or_else(|| ProcessError::Setup(format!("robot {} is not in the scenario", config.robot.id)))?;
+    let model = &setup.model;
+    Ok(model.camera.calibration(&model.t_body_cam(0.0, 0.0), model.head))
+}
+
+fn vision_node(scenario: &Scenario, config: &RoverConfig) -> Result<VisionNode, ProcessError> {
+    let calibration = camera_calibration(scenario, config)?;
+    Ok(VisionNode::new(&calibration, VisionNodeOptions::from_vio(&scenario_vio_options(scenario, true)))?)
 }
 
 /// The calibration of the images the vision process publishes (rectified as `VisionNode` does),
 /// without building a vision node and its SGM matcher.
-fn rectified_calibration(world: &Arc<World>, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
-    let raw = camera_calibration(world, config)?;
+fn rectified_calibration(scenario: &Scenario, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
+    let raw = camera_calibration(scenario, config)?;
     if raw.rectified {
         return Ok(raw);
     }
@@ -134,12 +160,15 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
     }
     if let Some(feed) = link.ground_feed_addr() {
         let udp = UdpLink::bind("0.0.0.0:0")?.with_peers([feed]);
-        links.push(LinkConfig::ground(GROUND_LINK, udp.framing(), GROUND_RATE_BYTES_PER_S));
+        links.push(LinkConfig::ground(GROUND_LINK, udp.framing(), link.ground_bandwidth_bytes_per_s));
         driver.add(GROUND_LINK, Box::new(udp));
     }
     let mut comms_config = CommsConfig::new(RobotId(robot_id(usize::from(config.robot.id)) as u8), links);
     // A new boot id per start: peers reset their channels to a restarted process.
     comms_config.boot_id = (monotonic_ns() / 1_000) as u32 ^ std::process::id();
+    if let Some(key) = &link.ground_key_file {
+        comms_config = comms_config.with_key_file(key).map_err(|e| ProcessError::Setup(format!("comms: {e}")))?;
+    }
     let comms = CommsNode::new(comms_config).map_err(|e| ProcessError::Setup(format!("comms: {e}")))?;
     Ok((comms, driver))
 }
@@ -147,19 +176,27 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
 fn build(kind: NodeKind, config: &RoverConfig, dir: &Path) -> Result<Hosted, ProcessError> {
     Ok(match kind {
         NodeKind::Driver => Hosted::Driver(Box::new(driver_node(&world(config)?, config)?)),
-        NodeKind::Vision => Hosted::Vision(Box::new(vision_node(&world(config)?, config)?)),
+        NodeKind::Vision => Hosted::Vision(Box::new(vision_node(&scenario(config)?, config)?)),
         NodeKind::Filter => {
-            let world = world(config)?;
-            Hosted::Filter(Box::new(FilterNode::new(FilterNodeOptions::from_vio(&sim_vio_options(&world, true)))))
+            let scenario = scenario(config)?;
+            let state = dir.join("state");
+            std::fs::create_dir_all(&state).map_err(io_error(&state))?;
+            let mut options = FilterNodeOptions::from_vio(&scenario_vio_options(&scenario, true));
+            options.checkpoint_path = Some(state.join("filter.ckpt"));
+            Hosted::Filter(Box::new(FilterNode::new(options)))
         }
         NodeKind::Mapper => {
-            let calibration = rectified_calibration(&world(config)?, config)?;
+            let calibration = rectified_calibration(&scenario(config)?, config)?;
             let mut mapper_config = crate::mission::world::mapper_config(
                 usize::from(config.robot.id),
                 calibration,
                 config.camera.downscale,
             );
             mapper_config.state_dir = Some(dir.join("state"));
+            mapper_config.policy = mapper::submap::SubmapPolicy {
+                max_position_sigma_m: config.mapper.max_position_sigma_m,
+                max_distance_m: config.mapper.submap_max_distance_m,
+            };
             Hosted::Mapper(Box::new(
                 MapperNode::new(mapper_config).map_err(|e| ProcessError::Setup(format!("mapper: {e}")))?,
             ))
@@ -183,6 +220,7 @@ fn grid_start_ns(epoch_ns: u64, period_ns: u64, now_ns: u64) -> u64 {
 /// Runs process `kind` of the robot configured in `config_path` until SIGTERM or SIGINT.
 pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError> {
     let stop = termination_flag()?;
+    let setup_start = Instant::now();
     let config = RoverConfig::load(config_path)?;
     let dir = config.robot.output_dir();
     let tasks_dir = dir.join("tasks");
@@ -196,7 +234,15 @@ pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError>
     let ready = dir.join(READY_DIR);
     std::fs::create_dir_all(&ready).map_err(io_error(&ready))?;
     std::fs::write(ready.join(kind.name()), b"").map_err(io_error(&ready))?;
+    let setup_s = setup_start.elapsed().as_secs_f64();
     let Some(epoch_ns) = wait_for_epoch(&stop)? else { return Ok(()) };
+    if let Hosted::Filter(filter) = &mut hosted {
+        match filter.resume(epoch_ns) {
+            Ok(Some(stamp_ns)) => eprintln!("filter: resumed from the checkpoint at {:.3} s", stamp_ns as f64 * 1e-9),
+            Ok(None) => {}
+            Err(e) => eprintln!("filter: {e}; starting uninitialized"),
+        }
+    }
 
     // After the set-up: locking memory earlier would lock the world's build garbage too.
     let rt_report = rt::apply(&config.realtime.request(kind.process_kind()));
@@ -207,7 +253,7 @@ pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError>
         .with_stop_flag(Arc::clone(&stop))
         .with_start_ns(start_ns);
     eprintln!(
-        "{}: bus {}, {} Hz, release 0 at sensor time {:.3} s",
+        "{}: bus {}, {} Hz, set up in {setup_s:.2} s, release 0 at sensor time {:.3} s",
         bus.node_name(),
         bus.robot_id(),
         kind.task_rate(&config.rates).hz,
@@ -314,6 +360,14 @@ fn finish(
                 "frame_switches": s.frame_switches,
                 "bad_messages": s.bad_messages,
                 "filter_errors": s.filter_errors,
+                "resumes": s.resumes,
+                "resumed_from_ns": s.resumed_from_ns,
+                "restart_gap_ns": s.restart_gap_ns,
+                "restart_imu_lost": s.restart_imu_lost,
+                "imu_replayed": s.imu_replayed,
+                "checkpoints_written": s.checkpoints_written,
+                "checkpoint_errors": s.checkpoint_errors,
+                "frame_id": filter.filter().frame_id(),
             });
             write_json(&dir.join("filter_summary.json"), &summary)?;
             Ok(summary)
@@ -338,6 +392,9 @@ fn finish(
                 "images_integrated": c.images_integrated,
                 "switch_requests": c.switch_requests,
                 "messages_rejected": c.messages_rejected,
+                "submaps_restored": c.submaps_restored,
+                "own_submaps": mapper.own_submaps().map(|s| s.index).collect::<Vec<_>>(),
+                "current_submap": mapper.current_submap().index,
             });
             write_json(&dir.join("mapper_status.json"), &status)?;
             Ok(status)
@@ -368,7 +425,21 @@ fn finish(
 
 #[cfg(test)]
 mod tests {
-    use super::grid_start_ns;
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+
+    #[test]
+    fn the_scenario_gives_the_drivers_calibration() {
+        let mut config = RoverConfig::default();
+        config.driver.robots = 2;
+        config.driver.duration_s = 5.0;
+        config.robot.id = 1;
+        let world = world(&config).unwrap();
+        let from_driver = driver_node(&world, &config).unwrap().stereo_calibration().unwrap();
+        assert_eq!(camera_calibration(&scenario(&config).unwrap(), &config).unwrap(), from_driver);
+        config.robot.id = 2;
+        assert!(camera_calibration(&scenario(&config).unwrap(), &config).is_err());
+    }
 
     #[test]
     fn late_starter_joins_the_shared_grid() {

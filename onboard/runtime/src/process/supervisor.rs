@@ -7,8 +7,9 @@
 //! [`BACKOFF_MIN`] to [`BACKOFF_MAX`] and falls back to the minimum once the process has run
 //! [`HEALTHY_AFTER`]. On SIGTERM or SIGINT it forwards SIGTERM to every child, waits up to
 //! [`GRACE`] for them (the mapper writes its map then), kills the rest, and writes
-//! `supervisor.json` (starts, restarts and exits per process) into the robot's output folder.
-//! Children's output goes to `logs/<process>.log` there.
+//! `supervisor.json` (starts, restarts, exits and pids per process) into the robot's output
+//! folder. Children's output goes to `logs/<process>.log` there; the running child's pid is in
+//! `pids/<process>` ([`super::PID_DIR`]).
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -21,8 +22,8 @@ use nix::unistd::Pid;
 use serde_json::json;
 
 use super::{
-    EPOCH_ENV, EPOCH_FILE_ENV, NodeKind, ProcessError, epoch_from_env, io_error, monotonic_ns, termination_flag,
-    write_json,
+    EPOCH_ENV, EPOCH_FILE_ENV, NodeKind, PID_DIR, ProcessError, epoch_from_env, io_error, monotonic_ns,
+    termination_flag, write_json,
 };
 use crate::bus::remove_stale;
 use crate::config::RoverConfig;
@@ -54,6 +55,8 @@ struct Supervised {
     failures: u32,
     restart_at: Option<Instant>,
     exits: Vec<String>,
+    /// Pid of every start, in order.
+    pids: Vec<u32>,
 }
 
 /// What the supervisor did, per process.
@@ -64,6 +67,8 @@ pub struct ProcessRecord {
     pub restarts: u64,
     /// Exit statuses in order (the final one included).
     pub exits: Vec<String>,
+    /// Pid of every start, in order.
+    pub pids: Vec<u32>,
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -96,6 +101,7 @@ struct Launcher {
     config: PathBuf,
     epoch_ns: Option<u64>,
     logs: PathBuf,
+    pids: PathBuf,
 }
 
 impl Launcher {
@@ -108,7 +114,23 @@ impl Launcher {
         if let Some(epoch_ns) = self.epoch_ns {
             command.env(EPOCH_ENV, epoch_ns.to_string());
         }
-        command.stdin(Stdio::null()).stdout(log).stderr(log2).spawn().map_err(io_error(&self.exe))
+        let child = command.stdin(Stdio::null()).stdout(log).stderr(log2).spawn().map_err(io_error(&self.exe))?;
+        // tmp + rename: a reader sees the previous pid or this one, never a partial number.
+        let path = self.pid_path(kind);
+        let tmp = path.with_extension("tmp");
+        if let Err(e) = std::fs::write(&tmp, child.id().to_string()).and_then(|()| std::fs::rename(&tmp, &path)) {
+            eprintln!("supervisor: writing {}: {e}", path.display());
+        }
+        Ok(child)
+    }
+
+    fn pid_path(&self, kind: NodeKind) -> PathBuf {
+        self.pids.join(kind.name())
+    }
+
+    /// The child is reaped: its pid may be reused by an unrelated process.
+    fn forget_pid(&self, kind: NodeKind) {
+        let _ = std::fs::remove_file(self.pid_path(kind));
     }
 }
 
@@ -119,6 +141,8 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
     let dir = config.robot.output_dir();
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).map_err(io_error(&logs))?;
+    let pids = dir.join(PID_DIR);
+    std::fs::create_dir_all(&pids).map_err(io_error(&pids))?;
     let cleanup = remove_stale(config.robot.bus_id())?;
     if !cleanup.is_empty() {
         eprintln!("supervisor robot {}: stale iceoryx2 resources: {cleanup}", config.robot.id);
@@ -131,7 +155,7 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
     };
     let exe = std::env::current_exe().map_err(io_error(Path::new("/proc/self/exe")))?;
     let config_abs = std::path::absolute(config_path).map_err(io_error(config_path))?;
-    let launcher = Launcher { exe, config: config_abs, epoch_ns, logs };
+    let launcher = Launcher { exe, config: config_abs, epoch_ns, logs, pids };
 
     let now = Instant::now();
     let mut children: Vec<Supervised> = NodeKind::ALL
@@ -145,6 +169,7 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
             failures: 0,
             restart_at: Some(now),
             exits: Vec::new(),
+            pids: Vec::new(),
         })
         .collect();
 
@@ -167,6 +192,7 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
                         );
                         s.exits.push(describe(status));
                         s.child = None;
+                        launcher.forget_pid(s.kind);
                         s.restart_at = Some(now + wait);
                     }
                     Ok(None) => {
@@ -184,6 +210,7 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
                             s.restarts += 1;
                         }
                         s.starts += 1;
+                        s.pids.push(child.id());
                         s.child = Some(child);
                         s.started = now;
                         s.restart_at = None;
@@ -200,6 +227,9 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
     }
 
     stop_children(&mut children);
+    for s in &children {
+        launcher.forget_pid(s.kind);
+    }
     let report = SupervisorReport {
         robot: config.robot.id,
         epoch_ns,
@@ -210,13 +240,16 @@ pub fn supervise(config_path: &Path) -> Result<SupervisorReport, ProcessError> {
                 starts: s.starts,
                 restarts: s.restarts,
                 exits: s.exits.clone(),
+                pids: s.pids.clone(),
             })
             .collect(),
     };
     let processes: Vec<_> = report
         .processes
         .iter()
-        .map(|p| json!({"process": p.process, "starts": p.starts, "restarts": p.restarts, "exits": p.exits}))
+        .map(|p| {
+            json!({"process": p.process, "starts": p.starts, "restarts": p.restarts, "exits": p.exits, "pids": p.pids})
+        })
         .collect();
     write_json(
         &dir.join("supervisor.json"),

@@ -14,17 +14,22 @@
 //!   retransmitted share of packets sent in the period as `loss_permille`, the smoothed RTT and
 //!   the outages; its queue (queued + in flight + backlog) as a queue named after the link.
 //!
-//! `Telemetry` v1 has no per-message-class rates: those are in the node's `stats()`.
+//! - per message class (v2): cumulative wire bytes and packets the robot put on all its links
+//!   (retransmissions included), from the node's `stats().sent_by_class`, in key order; the
+//!   ground station differentiates them into bytes per second per class.
 
 use std::collections::BTreeMap;
 
 use msgs::{FilterStateMsg, ProcessKind, TaskStatsMsg};
 use protocol::delivery::EndpointStats;
-use protocol::message::state::{MAX_LINKS, MAX_QUEUES, MAX_TASKS};
+use protocol::message::state::{MAX_CLASSES, MAX_LINKS, MAX_QUEUES, MAX_TASKS};
 use protocol::message::{
-    FilterHealth, FilterStatus, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage, TaskStats, Telemetry,
+    ClassBytes, FilterHealth, FilterStatus, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage, TaskStats,
+    Telemetry,
 };
-use protocol::{Cov6, Pose3, RobotId, SubmapId};
+use protocol::{AnyMessage, Cov6, Pose3, RobotId, SubmapId};
+
+use super::ClassTraffic;
 
 /// A telemetry label from any text: truncated to what fits.
 pub(super) fn label(text: &str) -> Label {
@@ -74,6 +79,13 @@ pub(super) struct LinkView<'a> {
     pub backlog_dropped: u64,
     pub outages: u32,
     pub report: &'a mut LinkReport,
+}
+
+/// The node's counters a telemetry report carries.
+pub(super) struct Counters<'a> {
+    pub links: Vec<LinkView<'a>>,
+    pub auth_rejections: u64,
+    pub sent_by_class: &'a BTreeMap<&'static str, ClassTraffic>,
 }
 
 /// CPU accounting of one process.
@@ -192,9 +204,9 @@ impl GroundFeed {
         now_ns: u64,
         period_ns: u64,
         mode: Mode,
-        links: Vec<LinkView<'_>>,
-        auth_rejections: u64,
+        counters: Counters<'_>,
     ) -> Telemetry {
+        let Counters { links, auth_rejections, sent_by_class } = counters;
         let (filter, imu_lost) = self.filter_health(now_ns, period_ns);
         let permille_all_cores: u64 =
             self.processes.values().map(|p| p.permille_of_core).sum::<u64>() / u64::from(self.cpu_cores);
@@ -214,7 +226,17 @@ impl GroundFeed {
             queues: Default::default(),
             links: Default::default(),
             auth_rejections: saturate_u32(auth_rejections),
+            classes: Default::default(),
         };
+        for key in AnyMessage::KEYS.iter().take(MAX_CLASSES) {
+            let Some(traffic) = AnyMessage::name_of(*key).and_then(|name| sent_by_class.get(name)) else { continue };
+            // Cannot fail: at most MAX_CLASSES keys are taken.
+            let _ = telemetry.classes.push(ClassBytes {
+                message_key: key.0,
+                tx_bytes: traffic.wire_bytes,
+                tx_packets: saturate_u32(traffic.packets),
+            });
+        }
         for ((process, task), stats) in self.tasks.iter().take(MAX_TASKS) {
             let entry = TaskStats {
                 task: label(&format!("{}.{task}", process_name(*process))),
