@@ -151,7 +151,12 @@ impl Replay {
             // Not known yet at this position: the model keeps its own choice until it is.
             let _ = self.model.apply(target, &UiAction::SetReference(reference));
         }
-        self.model.tick(target);
+        if target >= self.end_ns() {
+            // The clock stops here: the last measurements must not wait for a graph period.
+            self.model.settle(target);
+        } else {
+            self.model.tick(target);
+        }
     }
 
     /// An operator action on the replayed model: a reference change is kept across seeks;

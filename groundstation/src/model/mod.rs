@@ -220,8 +220,10 @@ impl GraphState {
     }
 
     /// Runs the throttled update; true if the estimates changed.
-    fn update(&mut self, now_ns: u64) -> Result<bool, slam::SlamError> {
-        if !self.dirty || self.last_update_ns.is_some_and(|t| now_ns < t.saturating_add(GRAPH_PERIOD_NS)) {
+    /// Optimizes if new measurements arrived, at most once per [`GRAPH_PERIOD_NS`] unless `force`.
+    fn update(&mut self, now_ns: u64, force: bool) -> Result<bool, slam::SlamError> {
+        let throttled = !force && self.last_update_ns.is_some_and(|t| now_ns < t.saturating_add(GRAPH_PERIOD_NS));
+        if !self.dirty || throttled {
             return Ok(false);
         }
         let Some(graph) = self.ensure() else { return Ok(false) };
@@ -639,7 +641,7 @@ impl TeamModel {
                     return Err(ActionError::UnknownRobot(*robot));
                 }
                 self.graph.set_reference(*robot);
-                self.graph.update(now_ns).map_err(|_| ActionError::UnknownRobot(*robot))?;
+                self.graph.update(now_ns, false).map_err(|_| ActionError::UnknownRobot(*robot))?;
                 self.rebuild_view(now_ns, true);
                 return Ok(());
             }
@@ -802,6 +804,16 @@ impl TeamModel {
     /// Advances ground time: link samples, staleness, command queue and timeouts, the throttled
     /// graph update and map composition, and the view.
     pub fn tick(&mut self, now_ns: u64) {
+        self.tick_with(now_ns, false);
+    }
+
+    /// [`Self::tick`] without the graph's rate limit: brings graph, map and view up to date now,
+    /// for a clock that stops (the end of a replay).
+    pub fn settle(&mut self, now_ns: u64) {
+        self.tick_with(now_ns, true);
+    }
+
+    fn tick_with(&mut self, now_ns: u64, force: bool) {
         for c in &mut self.commands {
             if let (CommandState::Sent { first_sent_ns, .. }, true) = (c.view.state, c.in_endpoint)
                 && now_ns.saturating_sub(first_sent_ns) > COMMAND_TIMEOUT_NS
@@ -812,7 +824,7 @@ impl TeamModel {
         self.push_commands(now_ns);
         let state = self.link_state();
         self.link.tick(now_ns, state);
-        let changed = match self.graph.update(now_ns) {
+        let changed = match self.graph.update(now_ns, force) {
             Ok(changed) => changed,
             Err(e) => {
                 self.graph.errors += 1;
@@ -824,8 +836,11 @@ impl TeamModel {
             self.counters.graph_updates += 1;
         }
         // The engine ticks at 100 Hz; the view is published at 10 Hz.
-        if changed || self.last_view_ns.is_none_or(|t| now_ns >= t.saturating_add(VIEW_PERIOD_NS) || now_ns < t) {
-            self.rebuild_view(now_ns, false);
+        if changed
+            || force
+            || self.last_view_ns.is_none_or(|t| now_ns >= t.saturating_add(VIEW_PERIOD_NS) || now_ns < t)
+        {
+            self.rebuild_view(now_ns, force);
         }
     }
 

@@ -183,3 +183,81 @@ pub fn submap_match(by: u8, seq: u32, a: (u8, u32), b: (u8, u32), t_a_b: &Isomet
         covariance: cov(0.01),
     }
 }
+
+/// A 4-robot mission over 200 m × 200 m at benchmark scale: each robot maps its 100 m quadrant
+/// (`side`² submaps of 10 m × 10 m, points every `spacing_m`) in boustrophedon lanes, with poses
+/// and one match to robot 1 each.
+pub struct ScaleMission {
+    /// Per 10 s step: (robot index, stamp, message) in sending order.
+    pub steps: Vec<Vec<(usize, u64, AnyMessage)>>,
+    pub payload_bytes: usize,
+    pub end_ns: u64,
+}
+
+pub const S: u64 = 1_000_000_000;
+
+pub fn terrain(x: f64, y: f64) -> f32 {
+    (0.8 * (x * 0.15).sin() + 0.5 * (y * 0.11).cos() + 0.1 * ((x + y) * 0.9).sin()) as f32
+}
+
+/// Submap `index` of a robot whose frame sits at `quadrant` in the world: a 10 m square.
+pub fn scale_submap(robot: u8, index: u32, origin_world: [f64; 2], spacing_m: f32) -> Submap {
+    let mut s =
+        Submap::new(u16::from(robot), index, u64::from(index) * 10 * S, Isometry3::identity(), Matrix6::zeros());
+    s.end_stamp_ns = s.start_stamp_ns + 10 * S;
+    let n = (10.0 / spacing_m) as i32;
+    for i in 0..n {
+        for j in 0..n {
+            let (x, y) = (i as f32 * spacing_m + 0.02, j as f32 * spacing_m + 0.02);
+            let z = terrain(origin_world[0] + f64::from(x), origin_world[1] + f64::from(y));
+            let obstacle = (i * 7 + j * 13) % 997 == 0;
+            s.cloud.points.push(MapPoint { position_m: Point3::new(x, y, z), intensity: 80, obstacle });
+        }
+    }
+    s
+}
+
+pub fn scale_mission(side: u32, spacing: f32) -> ScaleMission {
+    let quadrants = [[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [100.0, 100.0]];
+    // Everything the robots send, encoded before the clock starts: (step, robot, message).
+    let mut payload_bytes = 0usize;
+    let mut steps: Vec<Vec<(usize, u64, AnyMessage)>> = Vec::new();
+    let mut now = 0u64;
+    for index in 0..side * side {
+        let mut step = Vec::new();
+        let (row, col) = (index / side, index % side);
+        let col = if row % 2 == 0 { col } else { side - 1 - col };
+        let local = [f64::from(col) * 10.0, f64::from(row) * 10.0];
+        for (r, quadrant) in quadrants.iter().enumerate() {
+            let id = r as u8 + 1;
+            let world = [quadrant[0] + local[0], quadrant[1] + local[1]];
+            let s = scale_submap(id, index, world, spacing);
+            let switch = (index > 0).then(|| {
+                let (prow, pcol) = ((index - 1) / side, (index - 1) % side);
+                let pcol = if prow % 2 == 0 { pcol } else { side - 1 - pcol };
+                Isometry3::from_parts(
+                    Translation3::new(local[0] - f64::from(pcol) * 10.0, local[1] - f64::from(prow) * 10.0, 0.0),
+                    Default::default(),
+                )
+            });
+            for m in submap_messages(&s, switch) {
+                if let AnyMessage::SubmapChunk(c) = &m {
+                    payload_bytes += c.data.len();
+                }
+                step.push((r, now, m));
+            }
+            for k in 0..10u64 {
+                let t = now + k * S;
+                step.push((r, t, pose(id, t, index, &planar(k as f64, 5.0, 0.0)).into()));
+            }
+            if index == 0 && id > 1 {
+                let offset = planar(quadrant[0], quadrant[1], 0.0);
+                step.push((r, now, submap_match(id, 0, (1, 0), (id, 0), &offset).into()));
+            }
+        }
+        steps.push(step);
+        now += 10 * S;
+    }
+
+    ScaleMission { steps, payload_bytes, end_ns: now }
+}

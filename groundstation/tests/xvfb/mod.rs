@@ -113,15 +113,21 @@ pub fn parse_xwd(bytes: &[u8]) -> Image {
     let bytes_per_line = field(12) as usize;
     let (red_mask, green_mask, blue_mask) = (field(14), field(15), field(16));
     let ncolors = field(19) as usize;
-    assert_eq!(bits_per_pixel, 32, "32-bit pixels");
+    // Xvfb packs 24-bit pixels for some screen sizes.
+    assert!(bits_per_pixel == 32 || bits_per_pixel == 24, "{bits_per_pixel}-bit pixels");
+    let bytes_per_pixel = bits_per_pixel as usize / 8;
     let data = &bytes[header_size + 12 * ncolors..];
     let channel = |pixel: u32, mask: u32| ((pixel & mask) >> mask.trailing_zeros()) as u8;
     let mut rgba = Vec::with_capacity(width * height * 4);
     for y in 0..height {
         let row = &data[y * bytes_per_line..];
         for x in 0..width {
-            let p: [u8; 4] = row[4 * x..4 * x + 4].try_into().unwrap();
-            let pixel = if byte_order == 0 { u32::from_le_bytes(p) } else { u32::from_be_bytes(p) };
+            let p = &row[bytes_per_pixel * x..bytes_per_pixel * (x + 1)];
+            let pixel = if byte_order == 0 {
+                p.iter().rev().fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
+            } else {
+                p.iter().fold(0u32, |acc, &b| (acc << 8) | u32::from(b))
+            };
             rgba.extend_from_slice(&[
                 channel(pixel, red_mask),
                 channel(pixel, green_mask),
