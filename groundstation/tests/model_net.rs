@@ -75,6 +75,86 @@ fn udp_packets_reach_the_view_and_acks_come_back() {
     drop(engine);
 }
 
+/// `--connect serial://PATH`: the engine on one end of a real pseudo-terminal pair, a robot's
+/// `hal::serial::SerialLink` (COBS + CRC frames, as on a serial radio) on the other.
+#[test]
+fn serial_pty_carries_telemetry_submaps_and_authenticated_commands() {
+    let (master, slave) = serialport::TTYPort::pair().expect("cannot open a pty pair");
+    let path = serialport::SerialPort::name(&slave).expect("the pty's device path");
+    let spec: groundstation::net::LinkSpec = format!("serial://{path}?baud=115200").parse().unwrap();
+    let engine = Engine::live(spec, ModelConfig { auth_key: Some(key()), source: "pty".into() }).unwrap();
+    assert!(engine.local_addr().is_none());
+    let mut link = hal::serial::SerialLink::from_serialport(master);
+    let mut robot = SimRobot::new(2, Some(key()));
+    let mut buf = vec![0u8; hal::link::MAX_LINK_PACKET_BYTES];
+    let start = Instant::now();
+    let mut pump = |robot: &mut SimRobot, link: &mut hal::serial::SerialLink<serialport::TTYPort>| {
+        let now_ms = start.elapsed().as_millis() as u64;
+        for packet in robot.transmit(now_ms * 1_000_000) {
+            link.send(&packet).unwrap();
+        }
+        let mut delivered = Vec::new();
+        while let Some(len) = link.recv(&mut buf, Duration::from_millis(5)).unwrap() {
+            robot.endpoint.handle_packet(now_ms, &buf[..len]).unwrap();
+        }
+        while let Some(d) = robot.endpoint.poll_deliver() {
+            delivered.push(d);
+        }
+        delivered
+    };
+
+    // Telemetry, a pose and a whole submap (header + reliable chunks, acked over the line).
+    robot.send(0, telemetry(2, 0, 0));
+    robot.send(0, pose(2, 0, 0, &planar(3.0, -1.0, 0.2)));
+    for message in submap_messages(&patch_submap(2, 0, 2.0, 0.5), None) {
+        robot.send(0, message);
+    }
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !engine.view().robots.get(&2).is_some_and(|r| r.submaps.iter().any(|s| s.bounds_submap_m.is_some())) {
+        assert!(Instant::now() < deadline, "the submap did not arrive: {:#?}", engine.view());
+        pump(&mut robot, &mut link);
+    }
+    let view = engine.view();
+    assert_eq!(view.robots[&2].mode, Some(Mode::Autonomous));
+    assert!(view.robots[&2].t_ref_body.is_some());
+    assert!(view.source.contains("pty"));
+
+    // A command from the operator crosses the line authenticated; the ack comes back.
+    engine.act(UiAction::SetMode { robot: 2, mode: Mode::Idle }).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut executed = 0;
+    loop {
+        assert!(Instant::now() < deadline, "no acknowledgement: {:#?}", engine.view().commands);
+        for d in pump(&mut robot, &mut link) {
+            if let AnyMessage::Command(command) = d.message {
+                assert_eq!(d.auth.map(|(sender, _)| sender), Some(NodeId::GROUND), "HMAC verified");
+                assert_eq!(command.kind, protocol::message::CommandKind::SetMode(Mode::Idle));
+                executed += 1;
+                let ack = protocol::message::CommandAck {
+                    robot: protocol::RobotId(2),
+                    command_id: command.id,
+                    outcome: protocol::message::CommandOutcome::Executed,
+                };
+                robot.send(start.elapsed().as_nanos() as u64, ack);
+            }
+        }
+        if engine.view().commands.first().is_some_and(|c| {
+            matches!(
+                c.state,
+                groundstation::view::CommandState::Acknowledged {
+                    outcome: protocol::message::CommandOutcome::Executed,
+                    ..
+                }
+            )
+        }) {
+            break;
+        }
+    }
+    assert_eq!(executed, 1);
+    drop(engine);
+    drop(slave);
+}
+
 #[test]
 fn the_engine_replays_a_recorded_mission() {
     let dir = std::env::temp_dir().join(format!("gs-engine-replay-{}", std::process::id()));

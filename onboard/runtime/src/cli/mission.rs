@@ -35,10 +35,25 @@ const USAGE: &str = "usage: onboard mission [--robots N] [--scenario moon|mars] 
   --ground-key FILE      key file (hex, owner-only permissions) authenticating ground commands on
                          every robot; without it every command is refused
   --ground-delay-ms MS   one-way delay of the emulated ground link, process runner (default 1000)
+  --ground-loss P        probability that the emulated ground link loses a packet, each way
+                         (process runner, default 0)
+  --ground-outage A-B    the emulated ground link carries nothing from A to B seconds of mission
+                         time (process runner; repeatable)
   --kill [R:]P@S         fault injection (process runner): SIGKILL to process P (driver, vision,
                          filter, mapper, comms) of robot index R (folder robotR/, default 0) at
                          S seconds of mission time; repeatable; recorded in faults.json
   --json                 print the report as one JSON object instead of the summary";
+
+/// `A-B` in seconds → `[A, B)` in ms.
+fn parse_outage(text: &str) -> Result<(u64, u64), String> {
+    let bad = || format!("--ground-outage: expected START-END seconds with START < END, got {text:?}");
+    let (a, b) = text.split_once('-').ok_or_else(bad)?;
+    let seconds = |v: &str| v.trim().parse::<f64>().ok().filter(|s| s.is_finite() && (0.0..=1e6).contains(s));
+    match (seconds(a), seconds(b)) {
+        (Some(a), Some(b)) if a < b => Ok(((a * 1e3).round() as u64, (b * 1e3).round() as u64)),
+        _ => Err(bad()),
+    }
+}
 
 fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, String> {
     use lexopt::prelude::*;
@@ -107,10 +122,21 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             Long("ground-key") => options.ground_key = Some(parser.value().map_err(|e| e.to_string())?.into()),
             Long("ground-delay-ms") => {
                 let v = text(&mut parser, "--ground-delay-ms")?;
-                options.ground_delay_ms = match v.parse::<u64>() {
+                options.ground_link.delay_ms = match v.parse::<u64>() {
                     Ok(ms) if ms <= 60_000 => ms,
                     _ => return Err(format!("--ground-delay-ms: expected 0 to 60000, got {v:?}")),
                 };
+            }
+            Long("ground-loss") => {
+                let v = text(&mut parser, "--ground-loss")?;
+                options.ground_link.loss = match v.parse::<f64>() {
+                    Ok(p) if (0.0..1.0).contains(&p) => p,
+                    _ => return Err(format!("--ground-loss: expected a probability in [0, 1), got {v:?}")),
+                };
+            }
+            Long("ground-outage") => {
+                let v = text(&mut parser, "--ground-outage")?;
+                options.ground_link.outages_ms.push(parse_outage(&v)?);
             }
             Long("json") => json = true,
             Long("help") | Short('h') => return Ok(None),

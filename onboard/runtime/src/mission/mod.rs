@@ -68,9 +68,9 @@ pub struct MissionOptions {
     /// Key file (`hal::keyfile`) that authenticates ground commands on every robot; `None`:
     /// every command is refused.
     pub ground_key: Option<PathBuf>,
-    /// One-way delay of the emulated ground link, ms (process runner; the lockstep runner's
-    /// simulated time has no wall-clock link to delay).
-    pub ground_delay_ms: u64,
+    /// Delay, loss and outages of the emulated ground link (process runner; the lockstep
+    /// runner's simulated time has no wall-clock link to emulate).
+    pub ground_link: crate::process::relay::GroundLinkEmulation,
     /// Processes killed (SIGKILL) during the mission: process runner only.
     pub faults: Vec<process::Fault>,
     /// The mapper's submap length instead of the configuration's 7 m (process runner only;
@@ -92,7 +92,7 @@ impl Default for MissionOptions {
             truth_loop_closures: false,
             feed: None,
             ground_key: None,
-            ground_delay_ms: 1_000,
+            ground_link: crate::process::relay::GroundLinkEmulation::default(),
             faults: Vec::new(),
             submap_max_distance_m: None,
         }

@@ -31,7 +31,7 @@ use super::report::{MissionReport, ProcessReport, RobotReport};
 use super::world::{mission_world, robot_id, truth_in_own_frame};
 use super::{MissionError, MissionOptions, RadioPreset, score};
 use crate::config::{LinkKind, PeerConfig, RoverConfig, Scenario};
-use crate::process::relay::Relay;
+use crate::process::relay::{GroundLinkEmulation, Relay};
 use crate::process::{
     EPOCH_FILE_ENV, NodeKind, PID_DIR, READY_DIR, monotonic_ns, read_json, read_tum, write_json, write_tum,
 };
@@ -268,7 +268,9 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
     let nodes: Vec<protocol::NodeId> = (0..options.robots).map(|r| protocol::NodeId(robot_id(r) as u8)).collect();
     let ground_log = out.join(super::lockstep::GROUND_FEED_LOG);
     let ground = crate::nodes::comms::GroundEnd::new(options.feed, &nodes, Some(&ground_log)).map_err(setup)?;
-    relay.enable_ground(&nodes, ground, options.ground_delay_ms).map_err(setup)?;
+    relay
+        .enable_ground(&nodes, ground, &GroundLinkEmulation { seed: options.seed, ..options.ground_link.clone() })
+        .map_err(setup)?;
     let mut configs = Vec::new();
     for robot in 0..options.robots {
         let dir = robot_dir(&out, robot);

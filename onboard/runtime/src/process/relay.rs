@@ -45,6 +45,26 @@ const GROUND_MTU: usize = 1200;
 /// delays.
 const GROUND_EMULATOR_RATE_BYTES_PER_S: u64 = 1_000_000;
 
+/// What the emulated ground link does to every packet, both ways, on the mission clock.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroundLinkEmulation {
+    /// One-way delay, ms.
+    pub delay_ms: u64,
+    /// Probability that a packet is lost (each direction, each packet: a lost submap chunk is
+    /// retransmitted by the reliable stream, a lost pose is simply gone).
+    pub loss: f64,
+    /// Mission-time intervals `[start_ms, end_ms)` in which the link carries nothing.
+    pub outages_ms: Vec<(u64, u64)>,
+    /// Seed of the loss draws.
+    pub seed: u64,
+}
+
+impl Default for GroundLinkEmulation {
+    fn default() -> Self {
+        GroundLinkEmulation { delay_ms: 1_000, loss: 0.0, outages_ms: Vec::new(), seed: 0 }
+    }
+}
+
 type GroundReassembler = Reassembler<2, { hal::link::MAX_LINK_PACKET_BYTES }>;
 
 /// One robot's side of the relayed ground link.
@@ -136,17 +156,24 @@ impl Relay {
         })
     }
 
-    /// Relays every robot's ground link to `end` with `delay_ms` one way (see the module
+    /// Relays every robot's ground link to `end` through `emulation` (see the module
     /// documentation); `nodes[r]` is robot `r`'s node id.
-    pub fn enable_ground(&mut self, nodes: &[NodeId], end: GroundEnd, delay_ms: u64) -> Result<(), RelayError> {
+    pub fn enable_ground(
+        &mut self,
+        nodes: &[NodeId],
+        end: GroundEnd,
+        emulation: &GroundLinkEmulation,
+    ) -> Result<(), RelayError> {
         let framing = Framing::Datagram { mtu: GROUND_MTU as u16 };
         let emulator = EmulatorConfig {
-            latency_ms: delay_ms,
+            latency_ms: emulation.delay_ms,
+            loss: emulation.loss,
+            outages: emulation.outages_ms.clone(),
             queue_bytes: 1 << 20,
             ..EmulatorConfig::ideal(GROUND_EMULATOR_RATE_BYTES_PER_S, framing)
         };
         let mut ports = Vec::with_capacity(nodes.len());
-        for &node in nodes {
+        for (i, &node) in nodes.iter().enumerate() {
             let socket = UdpSocket::bind("127.0.0.1:0").map_err(RelayError::Socket)?;
             socket.set_nonblocking(true).map_err(RelayError::Socket)?;
             ports.push(GroundPort {
@@ -155,7 +182,7 @@ impl Relay {
                 robot_addr: None,
                 reassembler: Box::new(GroundReassembler::new(2_000)),
                 segmenter: Segmenter::new(GROUND_MTU).map_err(|e| RelayError::Socket(std::io::Error::other(e)))?,
-                link: DuplexEmulator::symmetric(emulator.clone()),
+                link: DuplexEmulator::symmetric(emulator.clone().with_seed(emulation.seed ^ (i as u64 + 1))),
             });
         }
         self.ground = Some(Ground { ports, end });
@@ -350,7 +377,7 @@ mod tests {
         let log = std::env::temp_dir().join(format!("relay-ground-{}.log", std::process::id()));
         let nodes = [NodeId(1), NodeId(2)];
         let end = GroundEnd::new(Some(station.local_addr().unwrap()), &nodes, Some(&log)).unwrap();
-        relay.enable_ground(&nodes, end, 100).unwrap();
+        relay.enable_ground(&nodes, end, &GroundLinkEmulation { delay_ms: 100, ..Default::default() }).unwrap();
         let robot = UdpSocket::bind("127.0.0.1:0").unwrap();
         robot.set_read_timeout(Some(Duration::from_millis(300))).unwrap();
 
