@@ -23,6 +23,8 @@ const ROLE: &str = "ONBOARD_BR_ROLE";
 const ROBOT: &str = "ONBOARD_BR_ROBOT";
 const GEOMETRY: ImageGeometry = ImageGeometry { width_px: 64, height_px: 32 };
 const READY: &str = "BUS_RECOVERY_READY";
+/// The creator is about to create its services (the parent times its kill from this line).
+const CREATING: &str = "BUS_RECOVERY_CREATING";
 
 /// A robot id of its own per test and test run (tests run in parallel, robots are isolated).
 fn robot(offset: u16) -> u16 {
@@ -72,6 +74,7 @@ fn crash_child() {
             say(READY);
             loop {
                 let bus = Bus::open(robot, "driver", GEOMETRY).unwrap();
+                say(CREATING);
                 let outbox = bus.outbox(&Topic::ALL).unwrap();
                 let inbox = bus.inbox(&Topic::ALL).unwrap();
                 drop((inbox, outbox, bus));
@@ -91,6 +94,11 @@ impl Drop for KillOnDrop {
 }
 
 fn spawn_child(role: &str, robot: u16) -> KillOnDrop {
+    spawn_child_with_markers(role, robot).0
+}
+
+/// A child and, after its READY line, the arrivals of its later [`CREATING`] lines.
+fn spawn_child_with_markers(role: &str, robot: u16) -> (KillOnDrop, mpsc::Receiver<()>) {
     let mut child = Command::new(std::env::current_exe().unwrap())
         .args(["--exact", "crash_child", "--nocapture", "--test-threads=1"])
         .env(ROLE, role)
@@ -100,16 +108,19 @@ fn spawn_child(role: &str, robot: u16) -> KillOnDrop {
         .unwrap();
     let stdout = child.stdout.take().unwrap();
     let (tx, rx) = mpsc::channel();
+    let (marker_tx, markers) = mpsc::channel();
     std::thread::spawn(move || {
         for line in BufReader::new(stdout).lines().map_while(Result::ok) {
             if line.contains(READY) {
                 let _ = tx.send(());
+            } else if line.contains(CREATING) {
+                let _ = marker_tx.send(());
             }
         }
     });
     let child = KillOnDrop(child);
     rx.recv_timeout(Duration::from_secs(30)).expect("child did not start");
-    child
+    (child, markers)
 }
 
 fn sigkill(child: &mut KillOnDrop) {
@@ -279,14 +290,19 @@ fn killed_publisher_is_cleaned_up_and_the_same_topics_work_again() {
 fn kill_during_service_creation_leaves_a_working_bus() {
     let robot = robot(1);
     let _purge = Purge(robot);
-    // Kill points spread over the child's open/create/drop loop; rounds go on until the kills
-    // have hit both a live node and a half-created service (each costs iceoryx2's 1 s creation
-    // timeout), within a bound.
-    let delays_us = [3_000u64, 7_000, 11_000, 17_000, 23_000, 31_000, 43_000, 59_000];
+    // Kill points spread over the child's service creation: timed from the line it prints
+    // just before creating its ports (a fixed delay from start-up missed the creation window
+    // on a loaded machine). Rounds go on until the kills have hit both a live node and a
+    // half-created service (each costs iceoryx2's 1 s creation timeout), within a bound.
+    let delays_us = [0u64, 150, 400, 800, 1_300, 2_000, 3_000, 4_500];
     let (mut rounds, mut removed_total, mut hung_repaired) = (0, 0, 0);
     while rounds < 8 || (rounds < 32 && (removed_total < 4 || hung_repaired == 0)) {
-        let delay_us = delays_us[rounds % delays_us.len()] + rounds as u64 * 300;
-        let mut child = spawn_child("creator", robot);
+        let delay_us = delays_us[rounds % delays_us.len()] + rounds as u64 * 53;
+        let (mut child, markers) = spawn_child_with_markers("creator", robot);
+        // Some rounds let a few create/drop cycles pass first (services then exist or not).
+        for _ in 0..=rounds % 3 {
+            markers.recv_timeout(Duration::from_secs(30)).expect("the creator never started creating");
+        }
         std::thread::sleep(Duration::from_micros(delay_us));
         sigkill(&mut child);
 
