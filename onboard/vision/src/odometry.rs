@@ -198,18 +198,6 @@ pub struct StereoOdometry {
     keypoints: Vec<Keypoint>,
     linked: Vec<bool>,
     reacquire_landmark: Vec<u32>,
-    /// Track index + 1 per `TRACK_CELL_PX` cell of the image (0: none), for re-acquisition.
-    track_grid: Vec<u32>,
-}
-
-/// Cell size of the track lookup grid, pixels.
-const TRACK_CELL_PX: f32 = 2.0;
-/// A re-acquired point this close to a track is that track's point, pixels.
-const SAME_POINT_PX: f32 = 1.0;
-
-/// Cells of the track grid of a `width × height` image.
-fn track_grid_size(width: usize, height: usize) -> (usize, usize) {
-    ((width as f32 / TRACK_CELL_PX).ceil() as usize + 1, (height as f32 / TRACK_CELL_PX).ceil() as usize + 1)
 }
 
 impl std::fmt::Debug for StereoOdometry {
@@ -273,10 +261,6 @@ impl StereoOdometry {
             keypoints: Vec::with_capacity(max_features),
             linked: Vec::with_capacity(2 * max_features),
             reacquire_landmark: Vec::with_capacity(2 * max_features),
-            track_grid: {
-                let (cols, rows) = track_grid_size(width, height);
-                vec![0; cols * rows]
-            },
             config,
         })
     }
@@ -676,55 +660,15 @@ impl StereoOdometry {
             Some(&self.predicted),
             &mut self.tracked,
         );
-        // A re-acquired point landing on a track is that track's corner: it gets the link, not a
-        // second track. Copies would each become a landmark of the next keyframe and be
-        // re-acquired again, so the pool grew without bound (hundreds of MB, seconds per frame)
-        // when the rover kept losing and re-finding the same keyframes.
-        let (cols, rows) = track_grid_size(self.width, self.height);
-        self.track_grid.fill(0);
-        let cell = |p: [f32; 2]| {
-            let (c, r) = ((p[0] / TRACK_CELL_PX) as usize, (p[1] / TRACK_CELL_PX) as usize);
-            (c < cols && r < rows).then_some((c, r))
-        };
-        for (i, track) in self.history.tracks.iter().enumerate() {
-            if let Some((c, r)) = cell(track.pixel)
-                && let Some(slot) = self.track_grid.get_mut(r * cols + c)
-            {
-                *slot = i as u32 + 1;
-            }
-        }
-        let max_tracks = 2 * self.config.features.max_features;
-        for (result, &index) in self.tracked.iter().zip(&self.reacquire_landmark) {
-            let Some(pixel) = *result else { continue };
-            let Some((c, r)) = cell(pixel) else { continue };
-            let near = (r.saturating_sub(1)..(r + 2).min(rows))
-                .flat_map(|rr| (c.saturating_sub(1)..(c + 2).min(cols)).map(move |cc| rr * cols + cc))
-                .filter_map(|k| self.track_grid.get(k).copied().filter(|&t| t > 0))
-                .map(|t| (t - 1) as usize)
-                .find(|&t| {
-                    self.history.tracks.get(t).is_some_and(|track| {
-                        let (dx, dy) = (track.pixel[0] - pixel[0], track.pixel[1] - pixel[1]);
-                        dx * dx + dy * dy <= SAME_POINT_PX * SAME_POINT_PX
-                    })
-                });
-            match near {
-                Some(t) => {
-                    if let Some(track) = self.history.tracks.get_mut(t)
-                        && track.landmark[slot] == NO_LANDMARK
-                    {
-                        track.landmark[slot] = index;
-                    }
-                }
-                None if self.history.tracks.len() < max_tracks => {
-                    let mut track = Track::new(pixel);
-                    track.landmark[slot] = index;
-                    if let Some(g) = self.track_grid.get_mut(r * cols + c) {
-                        *g = self.history.tracks.len() as u32 + 1;
-                    }
-                    self.history.tracks.push(track);
-                }
-                None => {}
-            }
+        // The pool is bounded: a rover that kept losing and re-finding the same keyframes used
+        // to fill it with re-acquired copies of tracked corners (each copy becomes a landmark of
+        // the next keyframe and is re-acquired again): 1.2 GB and seconds per frame on seed 9.
+        let room = (2 * self.config.features.max_features).saturating_sub(self.history.tracks.len());
+        let found = self.tracked.iter().zip(&self.reacquire_landmark).filter_map(|(r, &i)| r.map(|p| (p, i)));
+        for (pixel, index) in found.take(room) {
+            let mut track = Track::new(pixel);
+            track.landmark[slot] = index;
+            self.history.tracks.push(track);
         }
     }
 
