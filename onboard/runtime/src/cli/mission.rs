@@ -171,3 +171,41 @@ pub fn main(args: Vec<OsString>) -> ExitCode {
     }
     ExitCode::SUCCESS
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn outages_are_start_end_seconds() {
+        assert_eq!(parse_outage("30-45"), Ok((30_000, 45_000)));
+        assert_eq!(parse_outage(" 0.5 - 2.25"), Ok((500, 2_250)));
+        for bad in ["", "30", "45-30", "30-30", "-5", "a-b", "1-inf", "1-NaN", "-1-4"] {
+            assert!(parse_outage(bad).unwrap_err().contains("--ground-outage"), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn ground_link_options_reach_the_mission_options() {
+        let args = ["--ground-delay-ms", "2000", "--ground-loss", "0.2", "--ground-outage", "10-20"];
+        let (options, _) = parse_args(args.iter().map(OsString::from).collect()).unwrap().unwrap();
+        assert_eq!(options.ground_link.delay_ms, 2_000);
+        assert_eq!(options.ground_link.loss, 0.2);
+        assert_eq!(options.ground_link.outages_ms, vec![(10_000, 20_000)]);
+        for bad in [["--ground-loss", "1.0"], ["--ground-loss", "-0.1"], ["--ground-outage", "5"]] {
+            assert!(parse_args(bad.iter().map(OsString::from).collect()).is_err(), "{bad:?}");
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn any_outage_text_parses_or_is_refused(text in "\\PC{0,24}") {
+            if let Ok((start_ms, end_ms)) = parse_outage(&text) {
+                prop_assert!(start_ms <= end_ms && end_ms <= 1_000_000_000, "{start_ms}-{end_ms}");
+            }
+        }
+    }
+}
