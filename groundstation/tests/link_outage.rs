@@ -13,13 +13,12 @@ use groundstation::engine::Engine;
 use groundstation::model::ModelConfig;
 use groundstation::view::{CommandState, Staleness, TeamView, UiAction};
 use hal::emulator::EmulatorConfig;
-use hal::link::Link;
 use hal::udp::UdpLink;
 use model_common::*;
 use onboard::nodes::comms::GroundEnd;
 use onboard::process::relay::{GroundLinkEmulation, Relay};
-use protocol::message::{CommandAck, CommandOutcome, Mode};
-use protocol::{AnyMessage, NodeId, RobotId};
+use protocol::NodeId;
+use protocol::message::{CommandOutcome, Mode};
 
 const OUTAGE_MS: (u64, u64) = (2_000, 8_000);
 const END_MS: u64 = 11_000;
@@ -43,7 +42,6 @@ fn a_robot_goes_stale_in_an_outage_and_a_queued_command_is_delivered_after_it() 
     let mut robot = SimRobot::new(1, Some(key()));
 
     let start = Instant::now();
-    let mut buf = vec![0u8; hal::link::MAX_LINK_PACKET_BYTES];
     let (mut next_telemetry_ms, mut sent_command_at_ms) = (0u64, None);
     let mut seen: Vec<(u64, Staleness, Option<CommandState>)> = Vec::new();
     let mut verified_commands = 0;
@@ -57,23 +55,11 @@ fn a_robot_goes_stale_in_an_outage_and_a_queued_command_is_delivered_after_it() 
             robot.send(now_ns, telemetry(1, now_ns, 0));
             next_telemetry_ms += 250;
         }
-        for packet in robot.transmit(now_ns) {
-            link.send(&packet).unwrap();
-        }
+        robot.transmit_over(&mut link, now_ms);
         relay.pump(now_ms);
-        while let Some(len) = link.recv(&mut buf, Duration::ZERO).unwrap() {
-            robot.endpoint.handle_packet(now_ms, &buf[..len]).unwrap();
-        }
-        while let Some(delivered) = robot.endpoint.poll_deliver() {
-            if let AnyMessage::Command(command) = delivered.message {
-                assert_eq!(delivered.auth.map(|(sender, _)| sender), Some(NodeId::GROUND), "verified by HMAC");
-                assert_eq!(command.kind, protocol::message::CommandKind::SetMode(Mode::Safe));
-                verified_commands += 1;
-                robot.send(
-                    now_ns,
-                    CommandAck { robot: RobotId(1), command_id: command.id, outcome: CommandOutcome::Executed },
-                );
-            }
+        for command in robot.receive_over(&mut link, now_ms, Duration::ZERO) {
+            assert_eq!(command.kind, protocol::message::CommandKind::SetMode(Mode::Safe));
+            verified_commands += 1;
         }
         // The operator sends a command once the robot is flagged STALE, inside the outage.
         let view = engine.view();

@@ -86,21 +86,11 @@ fn serial_pty_carries_telemetry_submaps_and_authenticated_commands() {
     assert!(engine.local_addr().is_none());
     let mut link = hal::serial::SerialLink::from_serialport(master);
     let mut robot = SimRobot::new(2, Some(key()));
-    let mut buf = vec![0u8; hal::link::MAX_LINK_PACKET_BYTES];
     let start = Instant::now();
-    let mut pump = |robot: &mut SimRobot, link: &mut hal::serial::SerialLink<serialport::TTYPort>| {
+    let pump = |robot: &mut SimRobot, link: &mut hal::serial::SerialLink<serialport::TTYPort>| {
         let now_ms = start.elapsed().as_millis() as u64;
-        for packet in robot.transmit(now_ms * 1_000_000) {
-            link.send(&packet).unwrap();
-        }
-        let mut delivered = Vec::new();
-        while let Some(len) = link.recv(&mut buf, Duration::from_millis(5)).unwrap() {
-            robot.endpoint.handle_packet(now_ms, &buf[..len]).unwrap();
-        }
-        while let Some(d) = robot.endpoint.poll_deliver() {
-            delivered.push(d);
-        }
-        delivered
+        robot.transmit_over(link, now_ms);
+        robot.receive_over(link, now_ms, Duration::from_millis(5))
     };
 
     // Telemetry, a pose and a whole submap (header + reliable chunks, acked over the line).
@@ -125,18 +115,9 @@ fn serial_pty_carries_telemetry_submaps_and_authenticated_commands() {
     let mut executed = 0;
     loop {
         assert!(Instant::now() < deadline, "no acknowledgement: {:#?}", engine.view().commands);
-        for d in pump(&mut robot, &mut link) {
-            if let AnyMessage::Command(command) = d.message {
-                assert_eq!(d.auth.map(|(sender, _)| sender), Some(NodeId::GROUND), "HMAC verified");
-                assert_eq!(command.kind, protocol::message::CommandKind::SetMode(Mode::Idle));
-                executed += 1;
-                let ack = protocol::message::CommandAck {
-                    robot: protocol::RobotId(2),
-                    command_id: command.id,
-                    outcome: protocol::message::CommandOutcome::Executed,
-                };
-                robot.send(start.elapsed().as_nanos() as u64, ack);
-            }
+        for command in pump(&mut robot, &mut link) {
+            assert_eq!(command.kind, protocol::message::CommandKind::SetMode(Mode::Idle));
+            executed += 1;
         }
         if engine.view().commands.first().is_some_and(|c| {
             matches!(

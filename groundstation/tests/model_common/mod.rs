@@ -1,14 +1,16 @@
 //! Robots as the ground sees them: real protocol endpoints, real submaps from the mapper crate.
 #![allow(clippy::unwrap_used, clippy::expect_used, dead_code)]
 
+use std::time::Duration;
+
 use groundstation::model::TeamModel;
 use mapper::{MapPoint, Submap};
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion};
 use protocol::delivery::{Endpoint, EndpointConfig};
 use protocol::frame::Framing;
 use protocol::message::{
-    ClassBytes, Constraint, ConstraintId, ConstraintKind, FilterHealth, FilterStatus, Mode, PoseEstimate,
-    ResourceUsage, SubmapHeader, Telemetry,
+    ClassBytes, Command, CommandAck, CommandOutcome, Constraint, ConstraintId, ConstraintKind, FilterHealth,
+    FilterStatus, Mode, PoseEstimate, ResourceUsage, SubmapHeader, Telemetry,
 };
 use protocol::{AnyMessage, AuthKey, Cov6, MAX_PACKET_BYTES, NodeId, NodeRef, Pose3, RobotId, SubmapId};
 
@@ -61,6 +63,36 @@ impl SimRobot {
             out.push(buf[..len].to_vec());
         }
         out
+    }
+}
+
+impl SimRobot {
+    /// Sends everything the robot transmits now over a real link.
+    pub fn transmit_over(&mut self, link: &mut impl hal::link::Link, now_ms: u64) {
+        for packet in self.transmit(now_ms * 1_000_000) {
+            link.send(&packet).unwrap();
+        }
+    }
+
+    /// Handles what arrives on `link` within `wait`, and executes the ground's commands as a
+    /// robot would: each must carry the ground's verified HMAC, and is acknowledged `Executed`.
+    /// Returns the commands executed.
+    pub fn receive_over(&mut self, link: &mut impl hal::link::Link, now_ms: u64, wait: Duration) -> Vec<Command> {
+        let mut buf = vec![0u8; hal::link::MAX_LINK_PACKET_BYTES];
+        while let Some(len) = link.recv(&mut buf, wait).unwrap() {
+            self.endpoint.handle_packet(now_ms, &buf[..len]).unwrap();
+        }
+        let mut executed = Vec::new();
+        while let Some(delivered) = self.endpoint.poll_deliver() {
+            if let AnyMessage::Command(command) = delivered.message {
+                assert_eq!(delivered.auth.map(|(sender, _)| sender), Some(NodeId::GROUND), "verified by HMAC");
+                let ack =
+                    CommandAck { robot: RobotId(self.id), command_id: command.id, outcome: CommandOutcome::Executed };
+                self.send(now_ms * 1_000_000, ack);
+                executed.push(command);
+            }
+        }
+        executed
     }
 }
 
