@@ -15,7 +15,9 @@
 //! walls at the angle of repose are untraversable whatever the preset's obstacle list says.
 //!
 //! Run: `cargo run --release -p vision --example sim_obstacles -- [--seeds N] [--per-target K]
-//! [--open M] [--dump]`. The integration test `tests/obstacles.rs` uses [`Evaluator`].
+//! [--open M] [--dump]`; the stereo defaults are the on-board ones (`vision::depth_sgm_config`,
+//! `SpeckleFilter::for_image`), changed with `[--uniqueness PCT] [--lr-diff PX] [--lr-strict]
+//! [--speckle PX (0 = off)] [--speckle-step PX]`. The integration test `tests/obstacles.rs` uses [`Evaluator`].
 
 use std::collections::{HashMap, HashSet};
 use std::time::Instant;
@@ -30,7 +32,7 @@ use sim::robot::ROVER_CHASSIS_HEIGHT_M;
 use sim::scenario::{ScenarioOptions, preset};
 use sim::world::{ObstacleMap, World};
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
-use vision::{DepthImage, StereoGeometry};
+use vision::{DepthImage, SpeckleFilter, StereoGeometry, depth_sgm_config};
 
 /// Evaluation radius around the camera (the "within 5 m").
 pub const RADIUS_M: f64 = 5.0;
@@ -328,12 +330,27 @@ pub struct Evaluator<'w> {
     labels: PixelLabels,
     true_height_m: Vec<f32>,
     true_step_m: Vec<f32>,
+    /// Speckle removal between SGM and depth.
+    speckle: Option<SpeckleFilter>,
     pub false_clusters: Vec<FalseCluster>,
     dumps: usize,
 }
 
 impl<'w> Evaluator<'w> {
     pub fn new(world: &'w World, truth: &'w Truth, config: ObstacleConfig) -> Self {
+        let camera = world.robots[0].model().camera;
+        let speckle = SpeckleFilter::for_image(camera.width_px as usize, camera.height_px as usize);
+        Self::with_stereo(world, truth, config, depth_sgm_config(), Some(speckle))
+    }
+
+    /// As [`Evaluator::new`] (the on-board depth images) with another stereo configuration.
+    pub fn with_stereo(
+        world: &'w World,
+        truth: &'w Truth,
+        config: ObstacleConfig,
+        sgm: SgmConfig,
+        speckle: Option<SpeckleFilter>,
+    ) -> Self {
         let camera = world.robots[0].model().camera;
         let (width, height) = (camera.width_px as usize, camera.height_px as usize);
         let geometry = StereoGeometry {
@@ -349,7 +366,7 @@ impl<'w> Evaluator<'w> {
             truth,
             config,
             renderer: Renderer::new(camera, world.scenario.sensor),
-            matcher: Matcher::new(SgmConfig::default(), width, height, threads).unwrap(),
+            matcher: Matcher::new(sgm, width, height, threads).unwrap(),
             geometry,
             width,
             height,
@@ -361,6 +378,7 @@ impl<'w> Evaluator<'w> {
             labels: PixelLabels::default(),
             true_height_m: Vec::new(),
             true_step_m: Vec::new(),
+            speckle,
             false_clusters: Vec::new(),
             dumps: 0,
         }
@@ -435,6 +453,9 @@ impl<'w> Evaluator<'w> {
         let left = GrayImage::new(w, h, self.left.clone()).unwrap();
         let right = GrayImage::new(w, h, self.right.clone()).unwrap();
         self.matcher.compute_into(&left, &right, &mut self.disparity).unwrap();
+        if let Some(filter) = &mut self.speckle {
+            filter.apply(&mut self.disparity);
+        }
         self.depth.fill_from_disparity(&self.disparity, &self.geometry);
         self.measure_disparity_error(tally);
         let start = Instant::now();
@@ -661,6 +682,9 @@ fn main() {
     let mut dump = false;
     let mut diagnose = false;
     let mut config = ObstacleConfig::default();
+    let mut sgm = depth_sgm_config();
+    let mut speckle_px: Option<usize> = None;
+    let mut speckle_step_px = 1.0f32;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         let mut value = || args.next().and_then(|v| v.parse::<f64>().ok()).expect("a number");
@@ -673,12 +697,24 @@ fn main() {
             "--support" => config.step_support_cells = value() as usize,
             "--min-cluster" => config.min_step_cluster_cells = value() as usize,
             "--window" => config.window_cells = value() as usize,
+            "--uniqueness" => sgm.uniqueness_percent = value() as u8,
+            "--lr-diff" => sgm.lr_max_diff = value() as u8,
+            "--lr-strict" => sgm.lr_lenient = false,
+            "--speckle" => speckle_px = Some(value() as usize),
+            "--speckle-step" => speckle_step_px = value() as f32,
             "--dump" => dump = true,
             "--diagnose" => diagnose = true,
             other => panic!("unknown argument {other}"),
         }
     }
     config.validate().expect("a valid configuration");
+    println!(
+        "SGM: uniqueness {} %, LR max diff {} px, lenient {}; speckle filter {} px within {speckle_step_px} px (0 = off)",
+        sgm.uniqueness_percent,
+        sgm.lr_max_diff,
+        sgm.lr_lenient,
+        speckle_px.map_or_else(|| "400 (at 1024x508, scaled)".to_string(), |px| px.to_string())
+    );
     println!(
         "obstacles, Moon preset {size_m} m worlds: h_max {:.2} m, slope {:.0}°, window {} cells, support {}, min cluster {}, Δp {} px; {per_target} viewpoints per target at {DISTANCES_M:?} m, {open} open viewpoints per seed",
         config.max_step_m,
@@ -694,7 +730,13 @@ fn main() {
         let world = moon_world(seed, size_m);
         let truth = Truth::of(&world, config.max_step_m);
         let views = viewpoints(&world, &truth, per_target, open, seed);
-        let mut evaluator = Evaluator::new(&world, &truth, config);
+        let camera = world.robots[0].model().camera;
+        let speckle = match speckle_px {
+            None => Some(SpeckleFilter::for_image(camera.width_px as usize, camera.height_px as usize)),
+            Some(0) => None,
+            Some(px) => Some(SpeckleFilter::new(px, speckle_step_px)),
+        };
+        let mut evaluator = Evaluator::with_stereo(&world, &truth, config, sgm, speckle);
         let mut tallies = [Tally::default(), Tally::default(), Tally::default()];
         for (i, view) in views.iter().enumerate() {
             let slot = view.aim as usize;

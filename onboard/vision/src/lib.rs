@@ -32,10 +32,12 @@ pub mod obstacles;
 pub mod odometry;
 pub mod pyramid;
 pub mod rectify;
+pub mod speckle;
 pub mod stereo_match;
 
 pub use delta::VoDelta;
-pub use depth::{DepthImage, StereoGeometry};
+pub use depth::{DEPTH_UNIQUENESS_PERCENT, DepthImage, StereoGeometry, depth_sgm_config};
 pub use image::ImageView;
 pub use odometry::{StereoOdometry, VoConfig, VoError, VoOutput, VoStats};
 pub use rectify::{Rectifier, RectifyError};
+pub use speckle::SpeckleFilter;

@@ -26,7 +26,7 @@ use hal::sensor::{StereoCalibration, StereoFrame};
 use msgs::{DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, Pose, StereoHeader, VoDeltaMsg};
 use nalgebra::Isometry3;
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
-use vision::{DepthImage, Rectifier, StereoGeometry, StereoOdometry, VoConfig, VoOutput};
+use vision::{DepthImage, Rectifier, SpeckleFilter, StereoGeometry, StereoOdometry, VoConfig, VoOutput};
 
 use super::{Message, Node, NodeError, Outbox, Topic};
 use crate::vio::VioOptions;
@@ -47,6 +47,8 @@ pub struct VisionNodeOptions {
     /// Depth for the odometry from the SGM map instead of its sparse matching.
     pub sgm_depth_for_vo: bool,
     pub sgm: SgmConfig,
+    /// Drop SGM's small blunder patches before depth ([`vision::SpeckleFilter::for_image`]).
+    pub despeckle: bool,
     pub sgm_threads: usize,
     /// Seed the odometry with the filter's keyframe→current motion.
     pub vo_prior: bool,
@@ -60,7 +62,8 @@ impl VisionNodeOptions {
         VisionNodeOptions {
             vo: options.vo.clone(),
             sgm_depth_for_vo: options.sgm,
-            sgm: SgmConfig::default(),
+            sgm: vision::depth_sgm_config(),
+            despeckle: true,
             sgm_threads: options.sgm_threads.max(1),
             vo_prior: options.vo_prior,
             obstacles: ObstacleConfig::default(),
@@ -117,6 +120,7 @@ pub struct VisionNode {
     frame: StereoFrame,
     odometry: StereoOdometry,
     matcher: fpga_model::fast::Matcher,
+    speckle: Option<SpeckleFilter>,
     sgm_left: GrayImage,
     sgm_right: GrayImage,
     disparity: DisparityImage,
@@ -193,6 +197,7 @@ impl VisionNode {
             frame: StereoFrame::default(),
             odometry,
             matcher,
+            speckle: options.despeckle.then(|| SpeckleFilter::for_image(width, height)),
             sgm_left: image(),
             sgm_right: image(),
             disparity: DisparityImage { width, height, data: vec![DisparityPixel::INVALID; width * height] },
@@ -296,6 +301,9 @@ impl VisionNode {
         self.sgm_right.pixels.copy_from_slice(&frame.right);
         if self.matcher.compute_into(&self.sgm_left, &self.sgm_right, &mut self.disparity).is_err() {
             return false;
+        }
+        if let Some(filter) = &mut self.speckle {
+            filter.apply(&mut self.disparity);
         }
         self.depth.fill_from_disparity(&self.disparity, &self.geometry);
         match self.latest.filter(|l| l.running) {
