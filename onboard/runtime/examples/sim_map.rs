@@ -15,7 +15,7 @@ use std::sync::Arc;
 use eval::map::{HeightGrid, TrueObstacle};
 use filter::FrameSwitch;
 use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use fpga_model::{DisparityImage, GrayImage};
 use hal::sensor::{SensorEvent, SensorSource, StereoFrame};
 use mapper::global::{Composition, GlobalMap, GlobalMapConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
@@ -182,7 +182,9 @@ fn main() -> Result<(), BoxError> {
     let geometry = StereoGeometry::from_calibration(&calibration);
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut matcher = Matcher::new(SgmConfig::default(), w, h, threads)?;
+    // The vision node's depth: SGM with its uniqueness margin, then the speckle filter.
+    let mut matcher = Matcher::new(vision::depth_sgm_config(), w, h, threads)?;
+    let mut speckle = vision::SpeckleFilter::for_image(w, h);
     let mut left = GrayImage { width: w, height: h, pixels: vec![0; w * h] };
     let mut right = GrayImage { width: w, height: h, pixels: vec![0; w * h] };
     let mut disparity = DisparityImage { width: w, height: h, data: vec![0; w * h] };
@@ -209,6 +211,7 @@ fn main() -> Result<(), BoxError> {
             left.pixels.copy_from_slice(&frame.left);
             right.pixels.copy_from_slice(&frame.right);
             matcher.compute_into(&left, &right, &mut disparity)?;
+            speckle.apply(&mut disparity);
             let mut p = pool.pop().unwrap_or_else(|| Pending {
                 stamp_ns: 0,
                 depth: DepthImage::new(w, h),

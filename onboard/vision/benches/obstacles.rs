@@ -79,9 +79,11 @@ fn main() {
         }
     }
     println!("obstacle classification bench: {} depth images {w}x{h}, one thread", inputs.len());
-    for (clock, samples) in
-        [("wall", &mut wall_ms), ("thread CPU", &mut cpu_ms), ("speckle filter, wall", &mut speckle_ms)]
-    {
+    for (clock, samples) in [
+        ("classify, wall", &mut wall_ms),
+        ("classify, thread CPU", &mut cpu_ms),
+        ("speckle filter, wall", &mut speckle_ms),
+    ] {
         if samples.is_empty() {
             continue;
         }
@@ -89,7 +91,7 @@ fn main() {
         let median = samples[samples.len() / 2];
         let p95 = samples[((samples.len() - 1) as f64 * 0.95).round() as usize];
         println!(
-            "classify, {clock}: median {median:.2} ms, p95 {p95:.2} ms, max {:.2} ms; median / {FRAME_PERIOD_MS} ms frame period = {:.3}",
+            "{clock}: median {median:.2} ms, p95 {p95:.2} ms, max {:.2} ms; median / {FRAME_PERIOD_MS} ms frame period = {:.3}",
             samples[samples.len() - 1],
             median / FRAME_PERIOD_MS
         );

@@ -1,8 +1,9 @@
 //! The vision process as a bus node: rectification, SGM, obstacle labels and keyframe stereo
 //! odometry on each stereo pair (the vision half of [`crate::vio::VioPipeline`]).
 //!
-//! On a pair: rectify when the calibration is raw; SGM disparity (`fpga_model`'s fast matcher)
-//! always, because the mapper needs the dense map; depth and obstacle labels with the camera pose
+//! On a pair: rectify when the calibration is raw; SGM disparity (`fpga_model`'s fast matcher
+//! with [`vision::depth_sgm_config`], then [`vision::SpeckleFilter`]) always, because the mapper
+//! needs the dense map; depth and obstacle labels with the camera pose
 //! from the latest filter state (the classifier needs the camera relative to gravity); then one
 //! [`Message::Disparity`] with disparity and labels per pixel.
 //!
