@@ -17,7 +17,8 @@
 //! Run: `cargo run --release -p vision --example sim_obstacles -- [--seeds N] [--per-target K]
 //! [--open M] [--dump]`; the stereo defaults are the on-board ones (`vision::depth_sgm_config`,
 //! `SpeckleFilter::for_image`), changed with `[--uniqueness PCT] [--lr-diff PX] [--lr-strict]
-//! [--speckle PX (0 = off)] [--speckle-step PX]`. The integration test `tests/obstacles.rs` uses [`Evaluator`].
+//! [--speckle PX (0 = off)] [--speckle-step PX]`. The integration test `tests/obstacles.rs`
+//! uses [`Evaluator`].
 
 use std::collections::{HashMap, HashSet};
 use std::time::Instant;

@@ -334,8 +334,8 @@ fn simulated_drive_with_head_sweeps_while_standing() {
     }
     assert!(stops >= 1);
     assert!(switches >= stops, "{switches} returns to history keyframes in {stops} stops");
-    // Re-acquisition links a found-again landmark to the track already on that corner: the
-    // pool stays bounded (it used to fill with copies, one more per keyframe and return).
+    // Re-acquisition stops at twice the detector budget: the pool stays bounded (it used to
+    // fill with copies of tracked corners, one more per keyframe and return).
     let max_tracks = run.outputs.iter().map(|o| o.stats.tracks).max().unwrap();
     println!("tracks: at most {max_tracks} (detector budget {})", VoConfig::default().features.max_features);
     assert!(max_tracks as usize <= 2 * VoConfig::default().features.max_features, "{max_tracks} tracks");
