@@ -381,6 +381,36 @@ fn remove_hung_services(config: &Config, prefix: &str) -> usize {
     remove_unfinished(std::path::Path::new(&path_string(&config.global.service_dir())), prefix, &suffix, young)
 }
 
+/// How long a service's dynamic segment may stay zero bytes long before it counts as orphaned.
+const SIZELESS_SEGMENT_GRACE: Duration = Duration::from_millis(100);
+
+/// Removes the robot's service dynamic segments under `/dev/shm` that are zero bytes long and
+/// have stayed so for [`SIZELESS_SEGMENT_GRACE`]; returns how many.
+///
+/// A process killed between creating a segment and sizing it leaves an empty file, and
+/// iceoryx2 0.10's open of a dynamic storage retries a zero-sized mapping forever without
+/// looking at its timeout: the dead-node cleanup, which opens the services of the dead node,
+/// then hangs (seen in `tests/bus_recovery.rs`). A live creator sizes its segment right after
+/// creating it, so one still empty after the grace period has no creator left.
+fn remove_sizeless_dynamic_segments(config: &Config, prefix: &str) -> usize {
+    let suffix = String::from_utf8_lossy(config.global.service.dynamic_config_storage_suffix.as_bytes()).into_owned();
+    let shm = std::path::Path::new("/dev/shm");
+    let sizeless = |name: &str| {
+        let metadata = std::fs::metadata(shm.join(name)).ok()?;
+        let age = metadata.modified().ok()?.elapsed().unwrap_or_default();
+        (metadata.is_file() && metadata.len() == 0).then_some(age)
+    };
+    let mut removed = 0;
+    for name in shm_files(prefix).into_iter().filter(|name| name.ends_with(&suffix)) {
+        let Some(age) = sizeless(&name) else { continue };
+        std::thread::sleep(SIZELESS_SEGMENT_GRACE.saturating_sub(age));
+        if sizeless(&name).is_some() && std::fs::remove_file(shm.join(&name)).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// Removes the stale iceoryx2 resources of the robot's dead nodes (processes that were killed
 /// or crashed without dropping their node). Safe while other processes of the robot run: only
 /// nodes whose process is gone are touched.
@@ -399,6 +429,9 @@ pub fn remove_stale(robot_id: u16) -> Result<StaleCleanup, BusError> {
         CallbackProgression::Continue
     })
     .map_err(|e| BusError::Cleanup { robot_id, reason: format!("{e:?}") })?;
+    if !dead.is_empty() {
+        remove_sizeless_dynamic_segments(&config, &prefix);
+    }
     let timeout = Duration::from_secs(1);
     for view in dead {
         let node_id = *view.id();
@@ -557,6 +590,24 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn only_dynamic_segments_left_empty_are_removed() {
+        // A robot id no other test uses; the files are plain /dev/shm files as iceoryx2 makes them.
+        let robot_id = 64_001;
+        let config = robot_config(robot_id).unwrap();
+        let prefix = robot_prefix(robot_id);
+        let path = |name: &str| std::path::Path::new("/dev/shm").join(format!("{prefix}{name}"));
+        std::fs::write(path("orphan.dynamic"), b"").unwrap();
+        std::fs::write(path("sized.dynamic"), b"segment").unwrap();
+        std::fs::write(path("other.static"), b"").unwrap();
+        assert_eq!(remove_sizeless_dynamic_segments(&config, &prefix), 1);
+        assert!(!path("orphan.dynamic").exists());
+        assert!(path("sized.dynamic").exists() && path("other.static").exists());
+        for name in ["sized.dynamic", "other.static"] {
+            std::fs::remove_file(path(name)).unwrap();
+        }
+    }
 
     #[test]
     fn ports_move_between_threads() {
