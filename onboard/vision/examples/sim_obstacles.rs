@@ -14,6 +14,18 @@
 //! at least atan(0.15 / 0.28) ≈ 28° (diagonal) to 37° (axis), beyond the 25° slope limit: crater
 //! walls at the angle of repose are untraversable whatever the preset's obstacle list says.
 //!
+//! **Approach runs** (`--approach`): the camera drives straight at each rock and each edge target
+//! from 5 m to 2.5 m (`--approach-to M`), a frame every 0.5 m, on a path whose body stays on free
+//! ground; a target counts as found when one frame detects it. That is what the planner needs:
+//! a warning before the rover is there. A single frame is not enough evidence by construction:
+//! the step threshold `h_max + Δd` grows with range, so a rock just above `h_max` passes it only
+//! near, where its foot may already be below the image.
+//!
+//! Experiments: `--true-depth` classifies the renderer's exact depth instead of SGM's (the
+//! classifier's own ceiling); `--steep-edges` keeps only the edge discs where the true ground
+//! drops by more than `h_max` at more than the slope limit (the sim's crater-edge list also holds
+//! rims one may drive down); `--tilt RAD` tilts the head down by another angle than mounted.
+//!
 //! Run: `cargo run --release -p vision --example sim_obstacles -- [--seeds N] [--per-target K]
 //! [--open M] [--dump]`; the stereo defaults are the on-board ones (`vision::depth_sgm_config`,
 //! `SpeckleFilter::for_image`), changed with `[--uniqueness PCT] [--lr-diff PX] [--lr-strict]
@@ -48,6 +60,14 @@ pub const DISTANCES_M: [f64; 3] = [2.5, 3.5, 4.5];
 /// Edge targets are taken every this far along a negative obstacle's edge.
 const EDGE_TARGET_SPACING_M: f64 = 3.0;
 
+/// Recall by range: bins of this width from the camera out to [`RADIUS_M`].
+pub const RANGE_BIN_M: f64 = 1.0;
+pub const RANGE_BINS: usize = 6;
+
+fn range_bin(distance_m: f64) -> usize {
+    ((distance_m / RANGE_BIN_M).max(0.0) as usize).min(RANGE_BINS - 1)
+}
+
 /// Histogram of the SGM disparity error (see [`Tally::disparity_error_bins`]).
 pub const DISPARITY_BIN_PX: f64 = 0.02;
 pub const DISPARITY_SPAN_PX: f64 = 3.0;
@@ -64,6 +84,8 @@ pub enum Aim {
 pub struct Viewpoint {
     pub aim: Aim,
     pub t_world_body: Isometry3<f64>,
+    /// Head tilt (down positive), the robot's mounted tilt unless an experiment changes it.
+    pub tilt_rad: f64,
 }
 
 /// The listed true obstacles of one world.
@@ -105,6 +127,30 @@ impl Truth {
             }
         }
         Truth { rocks, edges, edge_targets }
+    }
+}
+
+impl Truth {
+    /// Keeps only the edge discs where the true ground drops by more than `max_step_m` at a mean
+    /// slope steeper than `max_slope_rad` (within 1 m, in any of 16 directions from the disc
+    /// centre): the cliffs the rover can neither step nor drive down. The sim's crater-edge rule
+    /// (0.3 m within 1 m of the crest, 17°) also lists rims the slope limit lets the rover descend.
+    pub fn keep_steep_edges(&mut self, world: &World, max_step_m: f64, max_slope_rad: f64) {
+        let hf = &world.terrain.heightfield;
+        let slope = max_slope_rad.tan();
+        let steep = |p: &Point2<f64>| {
+            let Some(top) = hf.height_at(p.x, p.y) else { return false };
+            (0..16).any(|k| {
+                let (s, c) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
+                (1..=20).any(|i| {
+                    let d = 0.05 * i as f64;
+                    hf.height_at(p.x + c * d, p.y + s * d).is_some_and(|z| top - z > max_step_m && top - z > slope * d)
+                })
+            })
+        };
+        self.edges.retain(|o| steep(&o.centre_m));
+        let edges = &self.edges;
+        self.edge_targets.retain(|t| edges.iter().any(|o| (o.centre_m - t).norm() <= 1e-9));
     }
 }
 
@@ -175,7 +221,7 @@ pub fn viewpoints(world: &World, truth: &Truth, per_target: usize, open: usize, 
                 continue;
             }
             if let Some(t_world_body) = body_pose(world, body_xy[0], body_xy[1], yaw) {
-                out.push(Viewpoint { aim, t_world_body });
+                out.push(Viewpoint { aim, t_world_body, tilt_rad: robot.setup.tilt_rad });
                 taken += 1;
             }
         }
@@ -195,8 +241,90 @@ pub fn viewpoints(world: &World, truth: &Truth, per_target: usize, open: usize, 
             continue;
         }
         if let Some(t_world_body) = body_pose(world, x, y, yaw) {
-            out.push(Viewpoint { aim: Aim::Open, t_world_body });
+            out.push(Viewpoint { aim: Aim::Open, t_world_body, tilt_rad: robot.setup.tilt_rad });
             placed += 1;
+        }
+    }
+    out
+}
+
+/// Camera distances (horizontal, to the target) of an approach run, far and near: from the range
+/// cutoff down to where the target reaches the image's lower edge (the view's nearest
+/// ground lies 2.4 m ahead at the mast's 1.24 m and 0.25 rad tilt).
+pub const APPROACH_M: (f64, f64) = (5.0, 2.5);
+/// Spacing of the approach frames.
+pub const APPROACH_STEP_M: f64 = 0.5;
+/// The approached section of a negative edge: its discs within this of the edge target.
+pub const EDGE_SECTION_M: f64 = 0.5;
+
+/// A straight drive towards one target, as the rolling local map sees it.
+#[derive(Debug, Clone)]
+pub struct Approach {
+    pub aim: Aim,
+    /// Rock height above h_max (rocks only; 0 for edges).
+    pub excess_height_m: f64,
+    /// The true obstacles the run is about: the rock, or the edge discs of the approached section.
+    pub truth: Vec<TrueObstacle>,
+    /// One pose per distance, far to near, with the distance.
+    pub frames: Vec<(Viewpoint, f64)>,
+}
+
+/// One approach per rock and per edge target, from the first of 16 bearings (starting at a
+/// random one) whose whole straight path keeps the body on free ground and the view on the
+/// terrain. Frames every [`APPROACH_STEP_M`] from `distances_m` (far, near), the head tilted down
+/// by `tilt_rad`.
+pub fn approaches(
+    world: &World,
+    truth: &Truth,
+    max_step_m: f64,
+    distances_m: (f64, f64),
+    tilt_rad: f64,
+    seed: u64,
+) -> Vec<Approach> {
+    let free = ObstacleMap::build(&world.terrain);
+    let robot = &world.robots[0];
+    let cam = robot.model().t_body_cam(0.0, tilt_rad).translation.vector;
+    let (far_m, near_m) = distances_m;
+    let count = ((far_m - near_m) / APPROACH_STEP_M).round() as usize + 1;
+    let distances: Vec<f64> = (0..count).map(|i| far_m - APPROACH_STEP_M * i as f64).collect();
+    let mut rng = seed ^ 0xA9_9A0C;
+    let targets = truth.rocks.iter().map(|(o, h)| (Aim::Rock, o.centre_m, vec![*o], h - max_step_m)).chain(
+        truth.edge_targets.iter().map(|p| {
+            let section = truth.edges.iter().filter(|o| (o.centre_m - p).norm() <= EDGE_SECTION_M).copied().collect();
+            (Aim::Edge, *p, section, 0.0)
+        }),
+    );
+    let mut out = Vec::new();
+    for (aim, target, section, excess_height_m) in targets {
+        let start = 2.0 * std::f64::consts::PI * next_unit(&mut rng);
+        for k in 0..16 {
+            let yaw = start + k as f64 * 2.0 * std::f64::consts::PI / 16.0;
+            let (s, c) = yaw.sin_cos();
+            let body_at = |d: f64| {
+                let cam_xy = [target.x - c * d, target.y - s * d];
+                (cam_xy, [cam_xy[0] - (c * cam.x - s * cam.y), cam_xy[1] - (s * cam.x + c * cam.y)])
+            };
+            // The path between the frames too, every 0.1 m.
+            let steps = ((far_m - near_m) / 0.1).round() as usize;
+            let path_free = (0..=steps).all(|i| !free.is_blocked(body_at(far_m - 0.1 * i as f64).1));
+            if !path_free {
+                continue;
+            }
+            let frames: Option<Vec<(Viewpoint, f64)>> = distances
+                .iter()
+                .map(|&d| {
+                    let (cam_xy, body_xy) = body_at(d);
+                    if !view_on_terrain(world, cam_xy, yaw) {
+                        return None;
+                    }
+                    body_pose(world, body_xy[0], body_xy[1], yaw)
+                        .map(|t_world_body| (Viewpoint { aim, t_world_body, tilt_rad }, d))
+                })
+                .collect();
+            if let Some(frames) = frames {
+                out.push(Approach { aim, excess_height_m, truth: section, frames });
+                break;
+            }
         }
     }
     out
@@ -210,6 +338,10 @@ pub struct Tally {
     pub rocks_found: usize,
     /// Rocks by height: [h_max, h_max + 0.1), [+0.1, +0.3), ≥ +0.3; (seen, found).
     pub rock_bins: [(usize, usize); 3],
+    /// Rocks and edge discs by horizontal distance from the camera to their centre, in
+    /// [`RANGE_BIN_M`] bins; (seen, found).
+    pub rock_ranges: [(usize, usize); RANGE_BINS],
+    pub edge_ranges: [(usize, usize); RANGE_BINS],
     pub edges: usize,
     pub edges_found: usize,
     /// Known cells within 5 m whose true window step exceeds h_max, and those detected.
@@ -235,6 +367,14 @@ impl Tally {
         self.rocks += other.rocks;
         self.rocks_found += other.rocks_found;
         for (a, b) in self.rock_bins.iter_mut().zip(&other.rock_bins) {
+            a.0 += b.0;
+            a.1 += b.1;
+        }
+        for (a, b) in self.rock_ranges.iter_mut().zip(&other.rock_ranges) {
+            a.0 += b.0;
+            a.1 += b.1;
+        }
+        for (a, b) in self.edge_ranges.iter_mut().zip(&other.edge_ranges) {
             a.0 += b.0;
             a.1 += b.1;
         }
@@ -334,6 +474,8 @@ pub struct Evaluator<'w> {
     /// Speckle removal between SGM and depth.
     speckle: Option<SpeckleFilter>,
     pub false_clusters: Vec<FalseCluster>,
+    /// Classify the renderer's exact depth instead of SGM's: the classifier's ceiling.
+    pub true_depth: bool,
     dumps: usize,
 }
 
@@ -381,6 +523,7 @@ impl<'w> Evaluator<'w> {
             true_step_m: Vec::new(),
             speckle,
             false_clusters: Vec::new(),
+            true_depth: false,
             dumps: 0,
         }
     }
@@ -447,7 +590,7 @@ impl<'w> Evaluator<'w> {
     /// Renders, matches, classifies and scores one viewpoint into `tally`.
     pub fn evaluate(&mut self, viewpoint: &Viewpoint, noise_seed: u64, tally: &mut Tally) {
         let robot = &self.world.robots[0];
-        let t_world_cam = viewpoint.t_world_body * robot.model().t_body_cam(0.0, robot.setup.tilt_rad);
+        let t_world_cam = viewpoint.t_world_body * robot.model().t_body_cam(0.0, viewpoint.tilt_rad);
         let scene = self.world.scene(&[]);
         self.renderer.render_stereo(&scene, &t_world_cam, noise_seed, &mut self.left, &mut self.right);
         let (w, h) = (self.width, self.height);
@@ -459,6 +602,9 @@ impl<'w> Evaluator<'w> {
         }
         self.depth.fill_from_disparity(&self.disparity, &self.geometry);
         self.measure_disparity_error(tally);
+        if self.true_depth {
+            self.depth.depth_m.copy_from_slice(self.renderer.depth_m());
+        }
         let start = Instant::now();
         self.classifier.classify(&self.depth, &self.geometry, &t_world_cam, &mut self.labels);
         tally.classify_ms.push(start.elapsed().as_secs_f64() * 1e3);
@@ -524,6 +670,33 @@ impl<'w> Evaluator<'w> {
         }
     }
 
+    /// The last image's obstacle cells within [`RADIUS_M`] of `cam`, and its height map as a grid.
+    fn detections(&self, cam: Point2<f64>) -> (Vec<usize>, HeightGrid) {
+        let map = self.classifier.height_map();
+        let side = map.side();
+        let detected =
+            (0..side * side).filter(|&k| map.cells()[k].is_obstacle() && (map.centre_m(k) - cam).norm() <= RADIUS_M);
+        let heights: Vec<f32> = map.cells().iter().map(|c| c.height_m).collect();
+        let grid =
+            HeightGrid::new(map.cell_size_m(), (map.centre_m(0).x, map.centre_m(0).y), side, side, heights).unwrap();
+        (detected.collect(), grid)
+    }
+
+    /// Whether the last image mapped any of `truth` within [`RADIUS_M`] of the camera, and whether
+    /// an obstacle cell matched one of those.
+    pub fn observe(&self, t_world_cam: &Isometry3<f64>, truth: &[TrueObstacle]) -> (bool, bool) {
+        let cam = Point2::new(t_world_cam.translation.vector.x, t_world_cam.translation.vector.y);
+        let near: Vec<TrueObstacle> =
+            truth.iter().filter(|o| (o.centre_m - cam).norm() - o.radius_m <= RADIUS_M).copied().collect();
+        let (detected, grid) = self.detections(cam);
+        let seen = obstacles_in_mapped_area(&near, &grid);
+        let map = self.classifier.height_map();
+        let found = seen.iter().any(|o| {
+            detected.iter().any(|&k| (map.centre_m(k) - o.centre_m).norm() <= o.radius_m + MATCHING.tolerance_m)
+        });
+        (!seen.is_empty(), found)
+    }
+
     fn score(&mut self, t_world_cam: &Isometry3<f64>, tally: &mut Tally) {
         self.true_steps();
         let cfg = self.config;
@@ -531,12 +704,8 @@ impl<'w> Evaluator<'w> {
         let map = self.classifier.height_map();
         let side = map.side();
         let near = |o: &TrueObstacle, r: f64| (o.centre_m - cam).norm() - o.radius_m <= r;
-        let in_radius = |k: usize| (map.centre_m(k) - cam).norm() <= RADIUS_M;
-        let detected: Vec<usize> = (0..side * side).filter(|&k| map.cells()[k].is_obstacle() && in_radius(k)).collect();
+        let (detected, grid) = self.detections(cam);
         let detections: Vec<Point2<f64>> = detected.iter().map(|&k| map.centre_m(k)).collect();
-        let heights: Vec<f32> = map.cells().iter().map(|c| c.height_m).collect();
-        let grid =
-            HeightGrid::new(map.cell_size_m(), (map.centre_m(0).x, map.centre_m(0).y), side, side, heights).unwrap();
         let found =
             |o: &TrueObstacle| detections.iter().any(|p| (p - o.centre_m).norm() <= o.radius_m + MATCHING.tolerance_m);
 
@@ -545,6 +714,9 @@ impl<'w> Evaluator<'w> {
             let height = self.truth.rocks.iter().find(|(r, _)| *r == o).map_or(0.0, |(_, h)| *h);
             let bin = usize::from(height >= cfg.max_step_m + 0.1) + usize::from(height >= cfg.max_step_m + 0.3);
             let hit = found(&o);
+            let range = &mut tally.rock_ranges[range_bin((o.centre_m - cam).norm())];
+            range.0 += 1;
+            range.1 += usize::from(hit);
             tally.rocks += 1;
             tally.rocks_found += usize::from(hit);
             tally.rock_bins[bin].0 += 1;
@@ -552,8 +724,14 @@ impl<'w> Evaluator<'w> {
         }
         let edges: Vec<TrueObstacle> = self.truth.edges.iter().filter(|o| near(o, RADIUS_M)).copied().collect();
         let seen_edges = obstacles_in_mapped_area(&edges, &grid);
-        tally.edges += seen_edges.len();
-        tally.edges_found += seen_edges.iter().filter(|o| found(o)).count();
+        for o in &seen_edges {
+            let hit = found(o);
+            tally.edges += 1;
+            tally.edges_found += usize::from(hit);
+            let range = &mut tally.edge_ranges[range_bin((o.centre_m - cam).norm())];
+            range.0 += 1;
+            range.1 += usize::from(hit);
+        }
 
         // Terrain steps: true step cells (within 6 m, for matching) as half-cell discs.
         let half_cell = 0.5 * map.cell_size_m();
@@ -650,6 +828,57 @@ impl<'w> Evaluator<'w> {
     }
 }
 
+/// What one approach run found: whether the target was ever mapped, and the farthest camera
+/// distance at which it was detected.
+#[derive(Debug, Clone, Copy)]
+struct RunOutcome {
+    aim: Aim,
+    excess_height_m: f64,
+    seen: bool,
+    found_at_m: Option<f64>,
+}
+
+impl Default for RunOutcome {
+    fn default() -> Self {
+        RunOutcome { aim: Aim::Open, excess_height_m: 0.0, seen: false, found_at_m: None }
+    }
+}
+
+/// Selects the runs of one summary line.
+type RunFilter = fn(&RunOutcome) -> bool;
+
+fn print_approaches(outcomes: &[RunOutcome], (far_m, near_m): (f64, f64), tilt_rad: Option<f64>) {
+    println!(
+        "approach runs (camera from {far_m:.1} to {near_m:.1} m, a frame every {APPROACH_STEP_M} m, head tilt {}; found = in at least one frame):",
+        tilt_rad.map_or_else(|| "as mounted".to_owned(), |t| format!("{t:.2} rad"))
+    );
+    let groups: [(&str, RunFilter); 5] = [
+        ("rocks", |o: &RunOutcome| o.aim == Aim::Rock),
+        ("rocks h_max..+0.1 m", |o: &RunOutcome| o.aim == Aim::Rock && o.excess_height_m < 0.1),
+        ("rocks +0.1..+0.3 m", |o: &RunOutcome| o.aim == Aim::Rock && (0.1..0.3).contains(&o.excess_height_m)),
+        ("rocks >= +0.3 m", |o: &RunOutcome| o.aim == Aim::Rock && o.excess_height_m >= 0.3),
+        ("edge sections", |o: &RunOutcome| o.aim == Aim::Edge),
+    ];
+    for (name, keep) in &groups {
+        let runs: Vec<&RunOutcome> = outcomes.iter().filter(|o| keep(o)).collect();
+        let seen: Vec<&&RunOutcome> = runs.iter().filter(|o| o.seen).collect();
+        let mut at: Vec<f64> = seen.iter().filter_map(|o| o.found_at_m).collect();
+        at.sort_by(f64::total_cmp);
+        let by_distance: Vec<String> = (0..=((far_m - near_m) / APPROACH_STEP_M).round() as usize)
+            .map(|i| far_m - APPROACH_STEP_M * i as f64)
+            .map(|d| format!("{d:.1} m {}", at.iter().filter(|&&a| a >= d - 1e-9).count()))
+            .collect();
+        println!(
+            "  {name:>20}: {} runs, {} mapped, {} found ({}); found by this distance: {}",
+            runs.len(),
+            seen.len(),
+            at.len(),
+            pct(ratio(at.len(), seen.len())),
+            by_distance.join(", ")
+        );
+    }
+}
+
 fn pct(v: Option<f64>) -> String {
     v.map_or_else(|| "n/a".to_owned(), |v| format!("{:.1} %", 100.0 * v))
 }
@@ -682,6 +911,11 @@ fn main() {
     let mut size_m = 60.0;
     let mut dump = false;
     let mut diagnose = false;
+    let mut true_depth = false;
+    let mut approach = false;
+    let mut approach_m = APPROACH_M;
+    let mut tilt_rad: Option<f64> = None;
+    let mut steep_edges = false;
     let mut config = ObstacleConfig::default();
     let mut sgm = depth_sgm_config();
     let mut speckle_px: Option<usize> = None;
@@ -705,6 +939,11 @@ fn main() {
             "--speckle-step" => speckle_step_px = value() as f32,
             "--dump" => dump = true,
             "--diagnose" => diagnose = true,
+            "--true-depth" => true_depth = true,
+            "--approach" => approach = true,
+            "--approach-to" => approach_m.1 = value(),
+            "--tilt" => tilt_rad = Some(value()),
+            "--steep-edges" => steep_edges = true,
             other => panic!("unknown argument {other}"),
         }
     }
@@ -727,10 +966,18 @@ fn main() {
     );
     let mut totals = [Tally::default(), Tally::default(), Tally::default()];
     let mut false_clusters = Vec::new();
+    let mut outcomes: Vec<RunOutcome> = Vec::new();
     for seed in 1..=seeds {
         let world = moon_world(seed, size_m);
-        let truth = Truth::of(&world, config.max_step_m);
-        let views = viewpoints(&world, &truth, per_target, open, seed);
+        let mut truth = Truth::of(&world, config.max_step_m);
+        if steep_edges {
+            truth.keep_steep_edges(&world, config.max_step_m, config.max_slope_rad);
+        }
+        let tilt_rad = tilt_rad.unwrap_or(world.robots[0].setup.tilt_rad);
+        let mut views = viewpoints(&world, &truth, per_target, open, seed);
+        for view in &mut views {
+            view.tilt_rad = tilt_rad;
+        }
         let camera = world.robots[0].model().camera;
         let speckle = match speckle_px {
             None => Some(SpeckleFilter::for_image(camera.width_px as usize, camera.height_px as usize)),
@@ -738,7 +985,45 @@ fn main() {
             Some(px) => Some(SpeckleFilter::new(px, speckle_step_px)),
         };
         let mut evaluator = Evaluator::with_stereo(&world, &truth, config, sgm, speckle);
+        evaluator.true_depth = true_depth;
         let mut tallies = [Tally::default(), Tally::default(), Tally::default()];
+        if approach {
+            let runs = approaches(&world, &truth, config.max_step_m, approach_m, tilt_rad, seed);
+            let robot = &world.robots[0];
+            for (r, run) in runs.iter().enumerate() {
+                let mut outcome =
+                    RunOutcome { aim: run.aim, excess_height_m: run.excess_height_m, ..RunOutcome::default() };
+                for (i, (view, d)) in run.frames.iter().enumerate() {
+                    evaluator.evaluate(view, seed * 1_000_003 + (r * 64 + i) as u64, &mut tallies[run.aim as usize]);
+                    let t_world_cam = view.t_world_body * robot.model().t_body_cam(0.0, view.tilt_rad);
+                    let (seen, found) = evaluator.observe(&t_world_cam, &run.truth);
+                    outcome.seen |= seen;
+                    if found && outcome.found_at_m.is_none() {
+                        outcome.found_at_m = Some(*d);
+                    }
+                }
+                if diagnose && run.aim == Aim::Edge && outcome.found_at_m.is_none() {
+                    let t = run.truth.first().map_or(Point2::origin(), |o| o.centre_m);
+                    println!("edge run {r} missed, target ({:.2}, {:.2}), last frame:", t.x, t.y);
+                    evaluator.diagnose();
+                }
+                outcomes.push(outcome);
+            }
+            println!(
+                "seed {seed}: {} rocks > h_max, {} edge targets, {} approach runs",
+                truth.rocks.len(),
+                truth.edge_targets.len(),
+                runs.len()
+            );
+            for (name, t) in ["rock", "edge", "open"].iter().zip(&tallies) {
+                print_row(name, t);
+            }
+            for (total, t) in totals.iter_mut().zip(&tallies) {
+                total.add(t);
+            }
+            false_clusters.extend(evaluator.false_clusters.drain(..).map(|c| (seed, c)));
+            continue;
+        }
         for (i, view) in views.iter().enumerate() {
             let slot = view.aim as usize;
             evaluator.evaluate(view, seed * 1_000_003 + i as u64, &mut tallies[slot]);
@@ -771,6 +1056,20 @@ fn main() {
     let names = ["h_max..+0.1 m", "+0.1..+0.3 m", ">= +0.3 m"];
     for (name, (seen, found)) in names.iter().zip(&all.rock_bins) {
         println!("  rocks {name:>14}: {found}/{seen} found ({})", pct(ratio(*found, *seen)));
+    }
+    for (name, bins) in [("rocks", &all.rock_ranges), ("edge discs", &all.edge_ranges)] {
+        let cells: Vec<String> = bins
+            .iter()
+            .enumerate()
+            .map(|(k, (seen, found))| {
+                let lo = k as f64 * RANGE_BIN_M;
+                format!("{lo:.0}-{:.0} m {found}/{seen} {}", lo + RANGE_BIN_M, pct(ratio(*found, *seen)))
+            })
+            .collect();
+        println!("  {name} by camera distance: {}", cells.join(", "));
+    }
+    if approach {
+        print_approaches(&outcomes, approach_m, tilt_rad);
     }
     let real = false_clusters.iter().filter(|(_, c)| c.true_step_m > config.max_step_m as f32).count();
     println!(
