@@ -1009,35 +1009,19 @@ fn main() {
                 }
                 outcomes.push(outcome);
             }
-            println!(
-                "seed {seed}: {} rocks > h_max, {} edge targets, {} approach runs",
-                truth.rocks.len(),
-                truth.edge_targets.len(),
-                runs.len()
-            );
-            for (name, t) in ["rock", "edge", "open"].iter().zip(&tallies) {
-                print_row(name, t);
+            println!("seed {seed}: {} approach runs", runs.len());
+        } else {
+            for (i, view) in views.iter().enumerate() {
+                let slot = view.aim as usize;
+                evaluator.evaluate(view, seed * 1_000_003 + i as u64, &mut tallies[slot]);
+                if diagnose && i % 20 == 0 {
+                    println!("viewpoint {i} {:?}", view.aim);
+                    evaluator.diagnose();
+                }
             }
-            for (total, t) in totals.iter_mut().zip(&tallies) {
-                total.add(t);
-            }
-            false_clusters.extend(evaluator.false_clusters.drain(..).map(|c| (seed, c)));
-            continue;
+            println!("seed {seed}: {} viewpoints", views.len());
         }
-        for (i, view) in views.iter().enumerate() {
-            let slot = view.aim as usize;
-            evaluator.evaluate(view, seed * 1_000_003 + i as u64, &mut tallies[slot]);
-            if diagnose && i % 20 == 0 {
-                println!("viewpoint {i} {:?}", view.aim);
-                evaluator.diagnose();
-            }
-        }
-        println!(
-            "seed {seed}: {} rocks > h_max, {} edge targets, {} viewpoints",
-            truth.rocks.len(),
-            truth.edge_targets.len(),
-            views.len()
-        );
+        println!("seed {seed}: {} rocks > h_max, {} edge targets", truth.rocks.len(), truth.edge_targets.len());
         for (name, t) in ["rock", "edge", "open"].iter().zip(&tallies) {
             print_row(name, t);
         }
