@@ -68,6 +68,19 @@ fn range_bin(distance_m: f64) -> usize {
     ((distance_m / RANGE_BIN_M).max(0.0) as usize).min(RANGE_BINS - 1)
 }
 
+/// Counts one obstacle into a (seen, found) pair.
+fn count(pair: &mut (usize, usize), hit: bool) {
+    pair.0 += 1;
+    pair.1 += usize::from(hit);
+}
+
+fn add_pairs(into: &mut [(usize, usize)], from: &[(usize, usize)]) {
+    for (a, b) in into.iter_mut().zip(from) {
+        a.0 += b.0;
+        a.1 += b.1;
+    }
+}
+
 /// Histogram of the SGM disparity error (see [`Tally::disparity_error_bins`]).
 pub const DISPARITY_BIN_PX: f64 = 0.02;
 pub const DISPARITY_SPAN_PX: f64 = 3.0;
@@ -128,9 +141,7 @@ impl Truth {
         }
         Truth { rocks, edges, edge_targets }
     }
-}
 
-impl Truth {
     /// Keeps only the edge discs where the true ground drops by more than `max_step_m` at a mean
     /// slope steeper than `max_slope_rad` (within 1 m, in any of 16 directions from the disc
     /// centre): the cliffs the rover can neither step nor drive down. The sim's crater-edge rule
@@ -257,6 +268,12 @@ pub const APPROACH_STEP_M: f64 = 0.5;
 /// The approached section of a negative edge: its discs within this of the edge target.
 pub const EDGE_SECTION_M: f64 = 0.5;
 
+/// The frame distances of an approach from `far` to `near`, every [`APPROACH_STEP_M`].
+pub fn approach_distances((far_m, near_m): (f64, f64)) -> impl Iterator<Item = f64> {
+    let steps = ((far_m - near_m) / APPROACH_STEP_M).round().max(0.0) as usize;
+    (0..=steps).map(move |i| far_m - APPROACH_STEP_M * i as f64)
+}
+
 /// A straight drive towards one target, as the rolling local map sees it.
 #[derive(Debug, Clone)]
 pub struct Approach {
@@ -285,8 +302,7 @@ pub fn approaches(
     let robot = &world.robots[0];
     let cam = robot.model().t_body_cam(0.0, tilt_rad).translation.vector;
     let (far_m, near_m) = distances_m;
-    let count = ((far_m - near_m) / APPROACH_STEP_M).round() as usize + 1;
-    let distances: Vec<f64> = (0..count).map(|i| far_m - APPROACH_STEP_M * i as f64).collect();
+    let distances: Vec<f64> = approach_distances(distances_m).collect();
     let mut rng = seed ^ 0xA9_9A0C;
     let targets = truth.rocks.iter().map(|(o, h)| (Aim::Rock, o.centre_m, vec![*o], h - max_step_m)).chain(
         truth.edge_targets.iter().map(|p| {
@@ -366,18 +382,9 @@ impl Tally {
         self.frames += other.frames;
         self.rocks += other.rocks;
         self.rocks_found += other.rocks_found;
-        for (a, b) in self.rock_bins.iter_mut().zip(&other.rock_bins) {
-            a.0 += b.0;
-            a.1 += b.1;
-        }
-        for (a, b) in self.rock_ranges.iter_mut().zip(&other.rock_ranges) {
-            a.0 += b.0;
-            a.1 += b.1;
-        }
-        for (a, b) in self.edge_ranges.iter_mut().zip(&other.edge_ranges) {
-            a.0 += b.0;
-            a.1 += b.1;
-        }
+        add_pairs(&mut self.rock_bins, &other.rock_bins);
+        add_pairs(&mut self.rock_ranges, &other.rock_ranges);
+        add_pairs(&mut self.edge_ranges, &other.edge_ranges);
         self.edges += other.edges;
         self.edges_found += other.edges_found;
         self.step_cells += other.step_cells;
@@ -697,6 +704,24 @@ impl<'w> Evaluator<'w> {
         (!seen.is_empty(), found)
     }
 
+    /// Evaluates every frame of `run` into `tally` (frame `i` rendered with noise seed
+    /// `noise_seed + i`) and reports whether and from how far the target was detected.
+    pub fn drive(&mut self, run: &Approach, noise_seed: u64, tally: &mut Tally) -> RunOutcome {
+        let robot = &self.world.robots[0];
+        let mut outcome =
+            RunOutcome { aim: run.aim, excess_height_m: run.excess_height_m, seen: false, found_at_m: None };
+        for (i, (view, distance_m)) in run.frames.iter().enumerate() {
+            self.evaluate(view, noise_seed + i as u64, tally);
+            let t_world_cam = view.t_world_body * robot.model().t_body_cam(0.0, view.tilt_rad);
+            let (seen, found) = self.observe(&t_world_cam, &run.truth);
+            outcome.seen |= seen;
+            if found {
+                outcome.found_at_m.get_or_insert(*distance_m);
+            }
+        }
+        outcome
+    }
+
     fn score(&mut self, t_world_cam: &Isometry3<f64>, tally: &mut Tally) {
         self.true_steps();
         let cfg = self.config;
@@ -714,13 +739,10 @@ impl<'w> Evaluator<'w> {
             let height = self.truth.rocks.iter().find(|(r, _)| *r == o).map_or(0.0, |(_, h)| *h);
             let bin = usize::from(height >= cfg.max_step_m + 0.1) + usize::from(height >= cfg.max_step_m + 0.3);
             let hit = found(&o);
-            let range = &mut tally.rock_ranges[range_bin((o.centre_m - cam).norm())];
-            range.0 += 1;
-            range.1 += usize::from(hit);
+            count(&mut tally.rock_ranges[range_bin((o.centre_m - cam).norm())], hit);
+            count(&mut tally.rock_bins[bin], hit);
             tally.rocks += 1;
             tally.rocks_found += usize::from(hit);
-            tally.rock_bins[bin].0 += 1;
-            tally.rock_bins[bin].1 += usize::from(hit);
         }
         let edges: Vec<TrueObstacle> = self.truth.edges.iter().filter(|o| near(o, RADIUS_M)).copied().collect();
         let seen_edges = obstacles_in_mapped_area(&edges, &grid);
@@ -728,9 +750,7 @@ impl<'w> Evaluator<'w> {
             let hit = found(o);
             tally.edges += 1;
             tally.edges_found += usize::from(hit);
-            let range = &mut tally.edge_ranges[range_bin((o.centre_m - cam).norm())];
-            range.0 += 1;
-            range.1 += usize::from(hit);
+            count(&mut tally.edge_ranges[range_bin((o.centre_m - cam).norm())], hit);
         }
 
         // Terrain steps: true step cells (within 6 m, for matching) as half-cell discs.
@@ -831,17 +851,11 @@ impl<'w> Evaluator<'w> {
 /// What one approach run found: whether the target was ever mapped, and the farthest camera
 /// distance at which it was detected.
 #[derive(Debug, Clone, Copy)]
-struct RunOutcome {
-    aim: Aim,
-    excess_height_m: f64,
-    seen: bool,
-    found_at_m: Option<f64>,
-}
-
-impl Default for RunOutcome {
-    fn default() -> Self {
-        RunOutcome { aim: Aim::Open, excess_height_m: 0.0, seen: false, found_at_m: None }
-    }
+pub struct RunOutcome {
+    pub aim: Aim,
+    pub excess_height_m: f64,
+    pub seen: bool,
+    pub found_at_m: Option<f64>,
 }
 
 /// Selects the runs of one summary line.
@@ -864,8 +878,7 @@ fn print_approaches(outcomes: &[RunOutcome], (far_m, near_m): (f64, f64), tilt_r
         let seen: Vec<&&RunOutcome> = runs.iter().filter(|o| o.seen).collect();
         let mut at: Vec<f64> = seen.iter().filter_map(|o| o.found_at_m).collect();
         at.sort_by(f64::total_cmp);
-        let by_distance: Vec<String> = (0..=((far_m - near_m) / APPROACH_STEP_M).round() as usize)
-            .map(|i| far_m - APPROACH_STEP_M * i as f64)
+        let by_distance: Vec<String> = approach_distances((far_m, near_m))
             .map(|d| format!("{d:.1} m {}", at.iter().filter(|&&a| a >= d - 1e-9).count()))
             .collect();
         println!(
@@ -989,19 +1002,8 @@ fn main() {
         let mut tallies = [Tally::default(), Tally::default(), Tally::default()];
         if approach {
             let runs = approaches(&world, &truth, config.max_step_m, approach_m, tilt_rad, seed);
-            let robot = &world.robots[0];
             for (r, run) in runs.iter().enumerate() {
-                let mut outcome =
-                    RunOutcome { aim: run.aim, excess_height_m: run.excess_height_m, ..RunOutcome::default() };
-                for (i, (view, d)) in run.frames.iter().enumerate() {
-                    evaluator.evaluate(view, seed * 1_000_003 + (r * 64 + i) as u64, &mut tallies[run.aim as usize]);
-                    let t_world_cam = view.t_world_body * robot.model().t_body_cam(0.0, view.tilt_rad);
-                    let (seen, found) = evaluator.observe(&t_world_cam, &run.truth);
-                    outcome.seen |= seen;
-                    if found && outcome.found_at_m.is_none() {
-                        outcome.found_at_m = Some(*d);
-                    }
-                }
+                let outcome = evaluator.drive(run, seed * 1_000_003 + (r * 64) as u64, &mut tallies[run.aim as usize]);
                 if diagnose && run.aim == Aim::Edge && outcome.found_at_m.is_none() {
                     let t = run.truth.first().map_or(Point2::origin(), |o| o.centre_m);
                     println!("edge run {r} missed, target ({:.2}, {:.2}), last frame:", t.x, t.y);

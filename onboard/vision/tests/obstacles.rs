@@ -239,18 +239,11 @@ fn every_rock_is_detected_while_the_rover_drives_towards_it() {
     assert_eq!(runs.len(), APPROACHED_ROCKS);
     let mut evaluator = Evaluator::new(&world, &truth, config);
     let mut tally = Tally::default();
-    let mut found_from_m = Vec::new();
-    for (r, run) in runs.iter().enumerate() {
-        let mut first = None;
-        for (i, (view, distance_m)) in run.frames.iter().enumerate() {
-            evaluator.evaluate(view, 1_000_003 + (r * 64 + i) as u64, &mut tally);
-            let t_world_cam = view.t_world_body * robot.model().t_body_cam(0.0, view.tilt_rad);
-            if evaluator.observe(&t_world_cam, &run.truth).1 {
-                first.get_or_insert(*distance_m);
-            }
-        }
-        found_from_m.push(first);
-    }
+    let found_from_m: Vec<Option<f64>> = runs
+        .iter()
+        .enumerate()
+        .map(|(r, run)| evaluator.drive(run, 1_000_003 + (r * 64) as u64, &mut tally).found_at_m)
+        .collect();
     assert!(found_from_m.iter().all(Option::is_some), "{found_from_m:?}");
     let early = found_from_m.iter().flatten().filter(|&&d| d >= 4.5).count();
     assert!(early >= FOUND_FROM_4_5_M, "{found_from_m:?}");
