@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 fn data(path: &str) -> String {
-    format!("{}/../../shared/data/{path}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../data/{path}", env!("CARGO_MANIFEST_DIR"))
 }
 
 fn temp_dir(name: &str) -> PathBuf {

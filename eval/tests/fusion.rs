@@ -19,7 +19,7 @@ use eval::fusion::{
 use eval::timesync::{HeadingAxis, wrap_angle_rad};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix2, Vector3};
 
-const V102_CSV: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/trajectories/V102_groundtruth.csv");
+const V102_CSV: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/trajectories/V102_groundtruth.csv");
 
 // ---------------------------------------------------------------------------------------------
 // Linear problem: RTS smoother against dense batch least squares.

@@ -9,7 +9,7 @@ use eval::io::{self, Format, ParseErrorKind};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data");
+const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data");
 
 fn read(relative: &str) -> String {
     std::fs::read_to_string(format!("{DATA}/{relative}")).unwrap()

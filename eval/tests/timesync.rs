@@ -15,9 +15,9 @@ use eval::timesync::{
 };
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 
-const V102_CSV: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/trajectories/V102_groundtruth.csv");
+const V102_CSV: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/trajectories/V102_groundtruth.csv");
 const V101_TUM: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/euroc/v1_01_excerpt/groundtruth_from_evo/V101_gt_tum.txt");
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../data/euroc/v1_01_excerpt/groundtruth_from_evo/V101_gt_tum.txt");
 
 #[derive(Debug, Clone, Copy)]
 struct Warp {

@@ -23,13 +23,13 @@ use serde_json::Value;
 
 const PYTHON: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../.venv/bin/python");
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/evo_reference.py");
-const V102_GT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/trajectories/V102_groundtruth.csv");
-const V102_EST: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/trajectories/V102.txt");
+const V102_GT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/trajectories/V102_groundtruth.csv");
+const V102_EST: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/trajectories/V102.txt");
 const V101_GT: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/euroc/v1_01_excerpt/groundtruth_from_evo/V101_gt_tum.txt");
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../data/euroc/v1_01_excerpt/groundtruth_from_evo/V101_gt_tum.txt");
 const V101_EST: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
-    "/../../shared/data/euroc/v1_01_excerpt/groundtruth_from_evo/V101_openvins_estimate_tum.txt"
+    "/../data/euroc/v1_01_excerpt/groundtruth_from_evo/V101_openvins_estimate_tum.txt"
 );
 
 const MAX_RELATIVE_DIFFERENCE: f64 = 1e-6;

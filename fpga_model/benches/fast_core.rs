@@ -44,7 +44,7 @@ fn resize_bilinear(image: &GrayImage, width: usize, height: usize) -> GrayImage 
 }
 
 fn load_pair(width: usize, height: usize) -> Result<(GrayImage, GrayImage), String> {
-    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/stereo/middlebury_2014q_adirondack/");
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/stereo/middlebury_2014q_adirondack/");
     let read = |name: &str| io::read_gray_png(format!("{data}{name}")).map_err(|e| e.to_string());
     let (left, right) = (read("Adirondack_left.png")?, read("Adirondack_right.png")?);
     Ok((resize_bilinear(&left, width, height), resize_bilinear(&right, width, height)))

@@ -53,7 +53,7 @@ fn resize_bilinear(image: &GrayImage, width: usize, height: usize) -> Result<Gra
 
 /// Writes the 1024×508 gray pair into the target directory; returns the images and paths.
 fn prepare_input() -> Result<(GrayImage, GrayImage, PathBuf, PathBuf), String> {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/stereo/middlebury_2014q_adirondack");
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/stereo/middlebury_2014q_adirondack");
     let out_dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("vs_opencv");
     std::fs::create_dir_all(&out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
     let mut images = Vec::new();

@@ -3,7 +3,7 @@
 //! One scoring implementation for every matcher: our core and the OpenCV comparison (whose
 //! results arrive as PFM files) are scored by [`bad_pixel_rate`] on the same [`Scene`]s.
 //!
-//! Scenes (data under `shared/data/stereo`, see each folder's `SOURCE.md`):
+//! Scenes (data under the repository's `data/stereo`, see each folder's `SOURCE.md`):
 //! - `tsukuba`, `teddy`, `cones` (`middlebury_v2/`): `imL.png`/`imR.png`, ground truth
 //!   `groundtruth.png` with disparity = value / scale, the scale on line 1 of `info.txt`
 //!   (16, 4, 4; tsukuba's GT is a 4-bit palette PNG, decoded through its palette), value 0 =
@@ -58,9 +58,9 @@ pub struct Scene {
 /// The Middlebury v2 scenes in this repository's data, in table order.
 pub const V2_SCENES: [&str; 3] = ["tsukuba", "teddy", "cones"];
 
-/// The stereo data folder (`shared/data/stereo`) seen from this crate's manifest directory.
+/// The stereo data folder (`data/stereo`) seen from this crate's manifest directory.
 pub fn default_data_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/stereo")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/stereo")
 }
 
 fn read_text(path: &Path) -> Result<String, EvalError> {

@@ -204,7 +204,7 @@ fn matcher_is_reusable_and_allocation_sized() {
     assert!(Matcher::new(SgmConfig { disparities: 20, ..config }, 90, 20, 1).is_err());
 }
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/stereo/");
+const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/stereo/");
 
 fn read_gray(relative: &str) -> GrayImage {
     fpga_model::io::read_gray_png(format!("{DATA}{relative}")).unwrap()

@@ -10,7 +10,7 @@ use fpga_model::io::{read_gray_png, read_png_values};
 use fpga_model::reference::{self, compute, compute_with_intermediates};
 use fpga_model::{PathMode, SgmConfig, SgmError};
 
-const TSUKUBA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/stereo/middlebury_v2/tsukuba");
+const TSUKUBA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/stereo/middlebury_v2/tsukuba");
 
 fn tsukuba() -> (GrayImage, GrayImage) {
     let left = read_gray_png(format!("{TSUKUBA}/imL.png")).unwrap();

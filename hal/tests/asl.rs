@@ -16,8 +16,8 @@ use hal::sensor::{Distortion, SensorError, SensorEvent, SensorSource, StereoFram
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 
-const V101: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/euroc/v1_01_excerpt");
-const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/euroc/mh_01_handheld");
+const V101: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/euroc/v1_01_excerpt");
+const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/euroc/mh_01_handheld");
 
 /// A fresh empty folder under the target's temp dir.
 fn temp_dir(name: &str) -> PathBuf {

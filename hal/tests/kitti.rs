@@ -1,5 +1,5 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
-//! The KITTI odometry reader on the shared straight-drive excerpt and on synthetic layouts.
+//! The KITTI odometry reader on the straight-drive excerpt in `data/` and on synthetic layouts.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -9,7 +9,7 @@ use hal::sensor::{SensorError, SensorEvent, SensorSource, StereoFrame, r_flu_opt
 use nalgebra::Vector3;
 use proptest::prelude::*;
 
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/stereo_sequences/kitti_straight");
+const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/stereo_sequences/kitti_straight");
 
 fn fresh_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("hal-kitti-{name}-{}", std::process::id()));

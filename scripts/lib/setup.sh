@@ -50,23 +50,10 @@ ensure_python_venv() {
     echo "$want" >"$stamp"
 }
 
-# The tests read the project's shared data folder as `../shared` beside the repository (the
-# workplace layout: `<dir>/main` and `<dir>/shared`). A checkout elsewhere, such as a fresh clone
-# into a temporary directory, gets that link to the workplace's copy at /work/shared; without
-# either, stop here with a clear message rather than fail inside dozens of tests.
-SHARED_FALLBACK=/work/shared
-
-ensure_shared_data() {
-    local beside
-    beside="$(cd .. && pwd)/shared"
-    if [[ -d "$beside/data" ]]; then
-        return 0
-    fi
-    if [[ -d "$SHARED_FALLBACK/data" && ! -e "$beside" ]]; then
-        echo "setup: linking $beside -> $SHARED_FALLBACK (shared test data)"
-        ln -s "$SHARED_FALLBACK" "$beside"
-        return 0
-    fi
-    echo "setup: the shared data folder is neither at $beside nor at $SHARED_FALLBACK" >&2
-    return 1
+# The tests read their data from the repository's `data/` (each set's origin, licence and file
+# checksums in its SOURCE.md); nothing outside the checkout is read. Checked before every run, so
+# a damaged or partial checkout (a Git LFS pointer, a truncated file) fails here with the file's
+# name instead of deep inside a test.
+verify_test_data() {
+    scripts/data-checksums --check
 }

@@ -3,7 +3,7 @@
 //!
 //! The codes and the bit layout are data from the AprilTag library's `tag36h11.c` (BSD-2-Clause,
 //! © 2013-2016 The Regents of the University of Michigan, APRIL Robotics Lab; Olson, ICRA 2011;
-//! Wang and Olson, IROS 2016), taken from `../shared/data/apriltag/tag36h11/`. Only the first
+//! Wang and Olson, IROS 2016), taken from the repository's `data/apriltag/tag36h11/`. Only the first
 //! 96 codes are kept (three per robot for 32 robots); a test checks them against that table.
 //!
 //! Cell layout (the data folder's verified convention): a 10 × 10 grid, the outer ring white, the
@@ -158,7 +158,7 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used, clippy::needless_range_loop)]
     use super::*;
 
-    const SHARED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data/apriltag/tag36h11/");
+    const SHARED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data/apriltag/tag36h11/");
 
     #[test]
     fn codes_and_layout_match_the_shared_table() {

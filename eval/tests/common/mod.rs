@@ -3,9 +3,9 @@
 
 use eval::{Trajectory, io};
 
-/// A file of the shared data folder (the repository sits next to `shared/`).
+/// A file of the repository's test data folder (`data/`).
 pub fn data(path: &str) -> String {
-    format!("{}/../../shared/data/{path}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../data/{path}", env!("CARGO_MANIFEST_DIR"))
 }
 
 /// EuRoC ground truth CSV through the crate's reader.

@@ -4,7 +4,7 @@
 use fpga_model::eval::{DEFAULT_THRESHOLD_PX, Scene, default_data_root};
 use fpga_model::{SgmConfig, fast, io};
 
-/// The four Middlebury scenes of `../shared/data/stereo/`.
+/// The four Middlebury scenes of the repository's `data/stereo/`.
 pub fn scenes() -> Vec<Scene> {
     Scene::load_all(default_data_root()).unwrap()
 }

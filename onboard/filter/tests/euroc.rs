@@ -7,7 +7,7 @@ use hal::asl::AslDataset;
 use hal::sensor::ImuSample;
 use nalgebra::{Matrix6, Vector3, Vector6};
 
-const DATASET: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/euroc/v1_01_excerpt");
+const DATASET: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/euroc/v1_01_excerpt");
 const GRAVITY_ZURICH_MPS2: f64 = 9.8066;
 
 fn load() -> (Vec<ImuSample>, ImuNoise, eval::Trajectory) {

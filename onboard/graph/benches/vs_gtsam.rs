@@ -1,5 +1,5 @@
 //! Speed of our batch LM, incremental smoother and marginal covariances against GTSAM 4.3 on the
-//! 3-D g2o benchmarks of `/work/shared/data/posegraph`, measured in the same run on the same
+//! 3-D g2o benchmarks of the repository's `data/posegraph`, measured in the same run on the same
 //! files. GTSAM runs through `scripts/gtsam_reference.py` in the project venv; its times are
 //! taken inside the script around the GTSAM call alone, so ours are timed the same way (no
 //! process start-up, no file parsing, no problem set-up).
@@ -37,7 +37,7 @@ const THESIS_MARGINALS_MEAN_MS: f64 = 106.0;
 const THESIS_MARGINALS_MAX_MS: f64 = 341.0;
 
 fn data_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/posegraph")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/posegraph")
 }
 
 fn dataset_path(name: &str) -> PathBuf {

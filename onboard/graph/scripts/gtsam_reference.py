@@ -38,7 +38,7 @@ Subcommands:
 
 Example:
   .venv/bin/python onboard/graph/scripts/gtsam_reference.py batch \\
-      --in /work/shared/data/posegraph/sphere2500.g2o
+      --in data/posegraph/sphere2500.g2o
 """
 
 import argparse

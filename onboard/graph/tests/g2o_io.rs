@@ -1,4 +1,4 @@
-//! g2o import/export against the benchmark files in `shared/data/posegraph`, hand-made records
+//! g2o import/export against the benchmark files in `data/posegraph`, hand-made records
 //! with known answers, and a fuzz test of the parser's totality and write/parse round trip.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -10,8 +10,8 @@ use proptest::prelude::*;
 use proptest::sample::Index;
 use proptest::test_runner::Config;
 
-/// The repository sits next to `shared` (in CI too, where `shared` is a symlink).
-const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/posegraph");
+/// The repository's test data (`data/posegraph`).
+const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/posegraph");
 
 /// File, dimension, vertex records, edge records (counted with `awk '{print $1}' | uniq -c`).
 const FILES: [(&str, Dimension, usize, usize); 10] = [

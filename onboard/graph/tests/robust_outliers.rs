@@ -18,8 +18,8 @@ use posegraph::dataset::{self, Problem, RobustSelection, is_odometry};
 use posegraph::g2o::{G2oGraph, parse};
 use posegraph::{Factor, Isam, IsamParams, LmParams, RobustKernel, Values, optimize, total_cost};
 
-/// The repository sits next to `shared` (in CI too, where `shared` is a symlink).
-const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/posegraph");
+/// The repository's test data (`data/posegraph`).
+const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/posegraph");
 
 /// Seed of the corruption; the bounds below were measured with it.
 const SEED: u64 = 1;

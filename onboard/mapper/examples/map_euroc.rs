@@ -13,7 +13,7 @@ use mapper::integrate::IntegratorConfig;
 use nalgebra::{Point3, Vector2, Vector3};
 use vision::rectify::Rectifier;
 
-const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/euroc/mh_01_handheld");
+const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/euroc/mh_01_handheld");
 
 fn main() -> Result<(), BoxError> {
     let out = common::out_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/docs"));

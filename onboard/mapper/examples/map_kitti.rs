@@ -12,7 +12,7 @@ use hal::sensor::StereoFrame;
 use mapper::integrate::IntegratorConfig;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/stereo_sequences/kitti_straight");
+const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight");
 /// KITTI's camera height above the road.
 const CAMERA_HEIGHT_M: f64 = 1.65;
 

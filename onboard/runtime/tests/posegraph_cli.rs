@@ -1,10 +1,10 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
-//! `onboard posegraph` end to end: the real binary on the shared g2o benchmarks.
+//! `onboard posegraph` end to end: the real binary on the g2o benchmarks in `data/posegraph`.
 
 use std::process::Command;
 
 fn data(name: &str) -> String {
-    format!("{}/../../../shared/data/posegraph/{name}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../../data/posegraph/{name}", env!("CARGO_MANIFEST_DIR"))
 }
 
 fn onboard(args: &[&str]) -> std::process::Output {

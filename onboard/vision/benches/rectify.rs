@@ -8,7 +8,7 @@ use hal::asl::AslDataset;
 use hal::sensor::{SensorSource, StereoFrame};
 use vision::Rectifier;
 
-const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/euroc/mh_01_handheld");
+const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/euroc/mh_01_handheld");
 const PAIRS: usize = 8;
 
 /// This thread's on-CPU time in ns (Linux `schedstat`), so that a busy machine does not inflate the

@@ -14,7 +14,7 @@ use vision::klt::{KltConfig, KltTracker};
 use vision::pyramid::Pyramid;
 
 const KITTI_LEFT: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/stereo_sequences/kitti_straight/image_l");
+    concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight/image_l");
 const WIDTH: usize = 1024;
 const HEIGHT: usize = 508;
 /// Pyramid levels of `VoConfig::default()`.

@@ -407,7 +407,7 @@ fn camera_delta_to_body_maps_pose_and_covariance() {
 }
 
 fn kitti_path(file: &str) -> String {
-    format!("{}/../../../shared/data/stereo_sequences/kitti_straight/{file}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../../data/stereo_sequences/kitti_straight/{file}", env!("CARGO_MANIFEST_DIR"))
 }
 
 fn load_gray(path: &str) -> (usize, usize, Vec<u8>) {

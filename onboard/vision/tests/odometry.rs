@@ -18,7 +18,7 @@ use sim::scenario::{ScenarioOptions, preset};
 use sim::world::World;
 use vision::{StereoOdometry, VoConfig, VoOutput};
 
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/stereo_sequences/kitti_straight");
+const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight");
 
 fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
     let bytes = std::fs::read(path).unwrap();

@@ -9,7 +9,7 @@ use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vect
 use proptest::prelude::*;
 use vision::rectify::{Rectifier, RectifyError, StereoSide, distort_normalized, undistort_normalized};
 
-const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/euroc/mh_01_handheld");
+const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/euroc/mh_01_handheld");
 
 fn raw_calibration() -> StereoCalibration {
     AslDataset::open(MH01).unwrap().stereo_calibration().unwrap()

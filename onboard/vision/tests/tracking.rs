@@ -10,8 +10,8 @@ use vision::features::{FeatureConfig, FeatureDetector, Keypoint};
 use vision::klt::{KltConfig, KltTracker};
 use vision::pyramid::Pyramid;
 
-const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/stereo_sequences/kitti_straight");
-const EUROC_MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/euroc/mh_01_handheld/mav0");
+const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight");
+const EUROC_MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/euroc/mh_01_handheld/mav0");
 
 struct Gray {
     width: usize,

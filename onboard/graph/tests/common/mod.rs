@@ -4,9 +4,9 @@
 use posegraph::dataset::{self, Problem};
 use posegraph::{Key, Pose3, Values, g2o, se3};
 
-/// The shared pose-graph benchmark folder (the repository sits next to `shared/`).
+/// The pose-graph benchmark folder (`data/posegraph` in the repository).
 pub fn data_path(name: &str) -> String {
-    format!("{}/../../../shared/data/posegraph/{name}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../../data/posegraph/{name}", env!("CARGO_MANIFEST_DIR"))
 }
 
 pub fn load(name: &str) -> Problem {
