@@ -57,3 +57,47 @@ ensure_python_venv() {
 verify_test_data() {
     scripts/data-checksums --check
 }
+
+# hal's SocketCAN tests (`#[ignore = "needs vcan"]` in hal/tests/can_link.rs) need a vcan
+# interface, and creating one takes a kernel with vcan and root. Where both are at hand this makes
+# `vcan0` (mtu 72 so it carries FD frames; classic sockets work on it too) and returns 0; it is
+# fine if it exists already. Otherwise it returns 1 with the reason in VCAN_UNAVAILABLE, so that
+# scripts/test reports those tests as not run rather than letting them pass unseen.
+VCAN_INTERFACE=vcan0
+
+ensure_vcan() {
+    VCAN_UNAVAILABLE=""
+    local sudo=() err modprobe_note=""
+    if [[ $(id -u) -ne 0 ]]; then
+        # -n: a password prompt would hang an unattended run.
+        if ! sudo -n true 2>/dev/null; then
+            VCAN_UNAVAILABLE="not root and no password-less sudo"
+            return 1
+        fi
+        sudo=(sudo -n)
+    fi
+    if [[ ! -e /sys/class/net/$VCAN_INTERFACE ]]; then
+        # modprobe is missing from slim images and not needed where vcan is built in or already
+        # loaded; its failure only matters if the interface then cannot be made.
+        if ! command -v modprobe >/dev/null; then
+            modprobe_note="no modprobe"
+        elif ! err=$("${sudo[@]}" modprobe vcan 2>&1); then
+            modprobe_note="modprobe vcan: ${err//$'\n'/ }"
+        fi
+        if ! err=$("${sudo[@]}" ip link add dev "$VCAN_INTERFACE" type vcan 2>&1); then
+            VCAN_UNAVAILABLE="ip link add dev $VCAN_INTERFACE type vcan: ${err//$'\n'/ }${modprobe_note:+; $modprobe_note}"
+            return 1
+        fi
+    fi
+    # vcan refuses an mtu change while up.
+    if [[ $(cat "/sys/class/net/$VCAN_INTERFACE/mtu") != 72 ]] &&
+        ! err=$("${sudo[@]}" ip link set dev "$VCAN_INTERFACE" down 2>&1 &&
+            "${sudo[@]}" ip link set dev "$VCAN_INTERFACE" mtu 72 2>&1); then
+        VCAN_UNAVAILABLE="cannot give $VCAN_INTERFACE mtu 72 for CAN FD: ${err//$'\n'/ }"
+        return 1
+    fi
+    if ! err=$("${sudo[@]}" ip link set dev "$VCAN_INTERFACE" up 2>&1); then
+        VCAN_UNAVAILABLE="ip link set dev $VCAN_INTERFACE up: ${err//$'\n'/ }"
+        return 1
+    fi
+}

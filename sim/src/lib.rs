@@ -32,6 +32,7 @@ pub mod render;
 pub mod rng;
 pub mod robot;
 pub mod scenario;
+pub mod se3;
 pub mod terrain;
 pub mod trajectory;
 pub mod truth_constraints;

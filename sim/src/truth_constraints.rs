@@ -19,7 +19,8 @@
 //!
 //! Covariances use the posegraph convention (onboard/graph/README.md "Conventions"): tangent
 //! `[translation, rotation]`, right perturbation `T·Exp(δ)` with the true SE(3) exponential
-//! (`posegraph::se3`).
+//! ([`crate::se3`], the same maps as `posegraph::se3` but written independently, so that the
+//! back-end is checked against truth that does not share its code).
 //!
 //! # Detection noise
 //!
@@ -67,9 +68,8 @@ use std::sync::Arc;
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
 
-use posegraph::se3::{adjoint, exp as se3_exp};
-
 use crate::rng::{self, streams};
+use crate::se3::{adjoint, exp as se3_exp};
 use crate::world::World;
 
 /// Grid of the seen-area bookkeeping.

@@ -4,8 +4,8 @@
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
-use posegraph::se3::log as se3_log;
 use sim::scenario::{ScenarioOptions, preset};
+use sim::se3::log as se3_log;
 use sim::truth_constraints::{SubmapSpan, TruthConstraintConfig, TruthConstraints, TruthDetection};
 use sim::world::World;
 
