@@ -2,9 +2,9 @@
 //! after their update, marginalized (rows and columns dropped) when no longer needed.
 
 use crate::FilterError;
-use crate::eskf::{Filter, IP, ITH, IV, NX, PoseClone};
-use crate::math::exp;
-use nalgebra::{SMatrix, Vector3};
+use crate::eskf::{Filter, IBG, IP, ITH, IV, NX, PoseClone};
+use crate::math::{exp, left_jacobian};
+use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 
 impl Filter {
     pub(crate) fn clone_pose_at(&mut self, stamp_ns: u64) -> Result<(), FilterError> {
@@ -12,8 +12,6 @@ impl Filter {
             return Ok(());
         }
         self.prune_clones(stamp_ns.max(self.stamp_ns));
-        // Cloning Jacobian on the core state: p_c = p − v·Δ, θ_c = θ (Δ = how far the capture lies
-        // before the state; 0 normally).
         let mut lag_s = 0.0;
         if stamp_ns >= self.stamp_ns {
             self.extrapolate_to(stamp_ns)?;
@@ -27,11 +25,11 @@ impl Filter {
             }
             lag_s = lag_ns as f64 * 1e-9;
         }
+        let w_body_radps = self.last_imu.map(|s| s.gyro_radps - self.bg).unwrap_or_else(Vector3::zeros);
         let (p, q) = if lag_s > 0.0 {
             // Back-extrapolation over a few milliseconds: constant velocity and the latest rate;
-            // the acceleration term (≤ 1 mm at 20 ms) and the bias coupling are neglected.
-            let w = self.last_imu.map(|s| s.gyro_radps - self.bg).unwrap_or_else(Vector3::zeros);
-            (self.p - self.v * lag_s, self.q * exp(&(-w * lag_s)))
+            // the acceleration term (≤ 1 mm at 20 ms) is neglected.
+            (self.p - self.v * lag_s, self.q * exp(&(-w_body_radps * lag_s)))
         } else {
             (self.p, self.q)
         };
@@ -40,12 +38,7 @@ impl Filter {
             self.marginalize_clone(victim);
             self.health.clones_evicted += 1;
         }
-        let mut j = SMatrix::<f64, 6, NX>::zeros();
-        for a in 0..3 {
-            j[(a, IP + a)] = 1.0;
-            j[(a, IV + a)] = -lag_s;
-            j[(3 + a, ITH + a)] = 1.0;
-        }
+        let j = clone_jacobian(&self.q, &w_body_radps, lag_s);
         let n = self.dim();
         // New rows: J·P[core, 0..n]; corner: J·P[core, core]·Jᵀ.
         for col in 0..n {
@@ -129,4 +122,22 @@ impl Filter {
         }
         self.clones.remove(i);
     }
+}
+
+/// Jacobian of a clone `(δp_c, δθ_c)` with respect to the core error state, for a capture
+/// `lag_s` before the state, back-extrapolated with the bias-corrected rate `w_body_radps`
+/// (see [`Filter::clone_pose_at`]): `p_c = p − v·Δ`, `q_c = q·Exp(−(w_m − b_g)·Δ)`, so
+/// `δp_c = δp − Δ·δv` and `δθ_c = δθ + R·J_l(−ω·Δ)·Δ·δb_g` (a bias error turns the back-rotation).
+pub(crate) fn clone_jacobian(q: &UnitQuaternion<f64>, w_body_radps: &Vector3<f64>, lag_s: f64) -> SMatrix<f64, 6, NX> {
+    let mut j = SMatrix::<f64, 6, NX>::zeros();
+    for a in 0..3 {
+        j[(a, IP + a)] = 1.0;
+        j[(a, IV + a)] = -lag_s;
+        j[(3 + a, ITH + a)] = 1.0;
+    }
+    if lag_s > 0.0 {
+        let r = q.to_rotation_matrix().into_inner();
+        j.fixed_view_mut::<3, 3>(3, IBG).copy_from(&(r * left_jacobian(&(-w_body_radps * lag_s)) * lag_s));
+    }
+    j
 }

@@ -14,6 +14,7 @@
 
 use crate::chi2::chi2_quantile;
 use crate::math::{euler_to_global_error, exp, roll_pitch_yaw};
+use crate::updates::pose_jacobian;
 use crate::{FilterConfig, FilterHealth, FrameSwitch};
 use hal::sensor::{ImuSample, WheelOdomSample};
 use nalgebra::{DMatrix, DMatrixView, DVector, Isometry3, Matrix3, Matrix6, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -386,16 +387,19 @@ impl Filter {
 
     /// A position/attitude block pair converted from global `δθ` to body-right `δθ_b = Rᵀ·δθ`.
     fn pose_block_covariance(&self, ip: usize, ith: usize, q: &UnitQuaternion<f64>) -> Matrix6<f64> {
-        let mut j = Matrix6::zeros();
-        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-        j.fixed_view_mut::<3, 3>(3, 3).copy_from(&q.to_rotation_matrix().matrix().transpose());
+        let j = pose_jacobian(q);
+        j * self.pose_block(ip, ith) * j.transpose()
+    }
+
+    /// The covariance of `[δp; δθ]` from the blocks at `ip` and `ith` (global attitude error).
+    pub(crate) fn pose_block(&self, ip: usize, ith: usize) -> Matrix6<f64> {
         let mut c = Matrix6::zeros();
         for (a, ia) in [ip, ip + 1, ip + 2, ith, ith + 1, ith + 2].into_iter().enumerate() {
             for (b, ib) in [ip, ip + 1, ip + 2, ith, ith + 1, ith + 2].into_iter().enumerate() {
                 c[(a, b)] = self.cov[(ia, ib)];
             }
         }
-        j * c * j.transpose()
+        c
     }
 
     /// Roll, pitch and yaw of the current attitude.
@@ -496,7 +500,7 @@ impl Filter {
     }
 
     /// Applies the correction in `scratch.dx` to the nominal state and the clones.
-    fn inject(&mut self) {
+    pub(crate) fn inject(&mut self) {
         let dx = &self.scratch.dx;
         let v3 = |i: usize| Vector3::new(dx[i], dx[i + 1], dx[i + 2]);
         self.p += v3(IP);

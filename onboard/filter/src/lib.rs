@@ -30,7 +30,12 @@ mod clones;
 pub mod config;
 pub mod eskf;
 pub mod health;
+#[cfg(test)]
+mod jacobian_checks;
 pub mod math;
+#[cfg(test)]
+#[path = "../../graph/src/numdiff.rs"]
+mod numdiff;
 mod propagate;
 mod snapshot;
 pub mod switch;

@@ -37,6 +37,23 @@ pub fn euler_to_global_error(q: &UnitQuaternion<f64>) -> Matrix3<f64> {
     Matrix3::new(cy * cp, -sy, 0.0, sy * cp, cy, 0.0, -sp, 0.0, 1.0)
 }
 
+/// Below this angle (rad) [`left_jacobian`] uses its Taylor series: the closed form cancels.
+const SMALL_ANGLE_RAD: f64 = 1e-2;
+
+/// Left Jacobian of SO(3), `Exp(φ + δ) ≈ Exp(J_l(φ)·δ)·Exp(φ)`:
+/// `I + (1 − cos θ)/θ²·[φ]× + (θ − sin θ)/θ³·[φ]×²`.
+pub fn left_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
+    let theta2 = phi.norm_squared();
+    let theta = theta2.sqrt();
+    let (a, b) = if theta < SMALL_ANGLE_RAD {
+        (0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, 1.0 / 6.0 - theta2 / 120.0 + theta2 * theta2 / 5040.0)
+    } else {
+        ((1.0 - theta.cos()) / theta2, (theta - theta.sin()) / (theta2 * theta))
+    };
+    let w = skew(phi);
+    Matrix3::identity() + w * a + w * w * b
+}
+
 /// `Log(q)` as a rotation vector.
 pub fn log(q: &UnitQuaternion<f64>) -> Vector3<f64> {
     q.scaled_axis()

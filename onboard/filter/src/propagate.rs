@@ -71,6 +71,20 @@ impl Filter {
     /// `(w0, a0)` at the start and `(w1, a1)` at the end.
     fn integrate(&mut self, t1_ns: u64, w0: &Vector3<f64>, a0: &Vector3<f64>, w1: &Vector3<f64>, a1: &Vector3<f64>) {
         let dt = (t1_ns - self.stamp_ns) as f64 * 1e-9;
+        let step = self.integrate_nominal(dt, w0, a0, w1, a1);
+        self.propagate_covariance(dt, &step);
+        self.stamp_ns = t1_ns;
+    }
+
+    /// The nominal state over `dt` (s); returns what the transition matrix needs.
+    pub(crate) fn integrate_nominal(
+        &mut self,
+        dt: f64,
+        w0: &Vector3<f64>,
+        a0: &Vector3<f64>,
+        w1: &Vector3<f64>,
+        a1: &Vector3<f64>,
+    ) -> StepLinearization {
         let w_mid = 0.5 * (w0 + w1) - self.bg;
         let f0 = a0 - self.ba;
         let f1 = a1 - self.ba;
@@ -85,25 +99,12 @@ impl Filter {
         self.q.renormalize();
 
         let r_mid = (self.q * exp(&(-0.5 * w_mid * dt))).to_rotation_matrix().into_inner();
-        let f_local = 0.5 * (r0 * f0 + r1 * f1);
-        self.propagate_covariance(dt, &r_mid, &f_local, &w_mid);
-        self.stamp_ns = t1_ns;
+        StepLinearization { r_mid_local_body: r_mid, f_local_mps2: 0.5 * (r0 * f0 + r1 * f1), w_body_radps: w_mid }
     }
 
-    /// `w` is the bias-corrected rate over the step.
-    fn propagate_covariance(&mut self, dt: f64, r: &Matrix3<f64>, f_local: &Vector3<f64>, w: &Vector3<f64>) {
-        let i3 = Matrix3::identity();
-        let fx = skew(f_local);
-        let dt2 = 0.5 * dt * dt;
-        let mut f = SMatrix::<f64, NX, NX>::identity();
-        f.fixed_view_mut::<3, 3>(IP, IV).copy_from(&(i3 * dt));
-        f.fixed_view_mut::<3, 3>(IP, ITH).copy_from(&(-fx * dt2));
-        f.fixed_view_mut::<3, 3>(IP, IBA).copy_from(&(-r * dt2));
-        f.fixed_view_mut::<3, 3>(IV, ITH).copy_from(&(-fx * dt));
-        f.fixed_view_mut::<3, 3>(IV, IBA).copy_from(&(-r * dt));
-        f.fixed_view_mut::<3, 3>(IV, IBG).copy_from(&(fx * r * dt2));
-        f.fixed_view_mut::<3, 3>(ITH, IBG).copy_from(&(-r * dt));
-
+    fn propagate_covariance(&mut self, dt: f64, step: &StepLinearization) {
+        let f = transition_matrix(dt, step);
+        let w = &step.w_body_radps;
         let n = &self.config.imu;
         let qa = n.accel_noise_density * n.accel_noise_density * dt;
         // Scale and misalignment errors rotate the attitude in proportion to the turn: spread as
@@ -142,4 +143,36 @@ impl Filter {
             }
         }
     }
+}
+
+/// The nominal step's values the error-state transition is linearized at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct StepLinearization {
+    /// Attitude at the middle of the step.
+    pub r_mid_local_body: Matrix3<f64>,
+    /// Mean specific force over the step, in the local frame.
+    pub f_local_mps2: Vector3<f64>,
+    /// Bias-corrected rate over the step.
+    pub w_body_radps: Vector3<f64>,
+}
+
+/// Error-state transition over `dt` (s) for the global attitude error: `F = I + A·dt` plus the
+/// `dt²/2` terms through which attitude and accelerometer bias reach position and the gyro bias
+/// reaches velocity.
+/// It equals the exact Jacobian of [`Filter::integrate_nominal`] up to `O(dt³)` and to the
+/// `O(dt²·|a₁ − a₀|)` of the samples' change within the step (checked in `jacobian_checks`).
+pub(crate) fn transition_matrix(dt: f64, step: &StepLinearization) -> SMatrix<f64, NX, NX> {
+    let i3 = Matrix3::identity();
+    let r = &step.r_mid_local_body;
+    let fx = skew(&step.f_local_mps2);
+    let dt2 = 0.5 * dt * dt;
+    let mut f = SMatrix::<f64, NX, NX>::identity();
+    f.fixed_view_mut::<3, 3>(IP, IV).copy_from(&(i3 * dt));
+    f.fixed_view_mut::<3, 3>(IP, ITH).copy_from(&(-fx * dt2));
+    f.fixed_view_mut::<3, 3>(IP, IBA).copy_from(&(-r * dt2));
+    f.fixed_view_mut::<3, 3>(IV, ITH).copy_from(&(-fx * dt));
+    f.fixed_view_mut::<3, 3>(IV, IBA).copy_from(&(-r * dt));
+    f.fixed_view_mut::<3, 3>(IV, IBG).copy_from(&(fx * r * dt2));
+    f.fixed_view_mut::<3, 3>(ITH, IBG).copy_from(&(-r * dt));
+    f
 }

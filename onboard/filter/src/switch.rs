@@ -17,7 +17,7 @@
 
 use crate::eskf::{Filter, IBA, IBG, IP, ITH, IV, NX};
 use crate::math::{yaw_jacobian, yaw_rotation};
-use nalgebra::{DMatrix, Isometry3, Matrix3, Matrix6, RowVector3, Vector3};
+use nalgebra::{DMatrix, Isometry3, Matrix3, Matrix6, RowVector3, UnitQuaternion, Vector3};
 
 /// The result of a frame switch: the new local frame in the old one (x, y, z, yaw of the body at
 /// switch time, roll = pitch = 0) with its covariance (`[δt; δθ]` convention). This is the
@@ -42,49 +42,24 @@ impl Filter {
         let (_, _, yaw) = self.roll_pitch_yaw();
         let rz = yaw_rotation(yaw);
         let rz_t = rz.inverse().to_rotation_matrix().into_inner();
-        let j_psi: RowVector3<f64> = yaw_jacobian(&self.q);
-        let ez = Vector3::z();
         let t_old_new = Isometry3::from_parts(self.p.into(), rz);
 
-        // The factor's covariance, from the old covariance.
-        let mut factor = Matrix6::zeros();
-        let p_pp = self.cov.fixed_view::<3, 3>(IP, IP).into_owned();
-        let p_pth = self.cov.fixed_view::<3, 3>(IP, ITH).into_owned();
-        let p_thth = self.cov.fixed_view::<3, 3>(ITH, ITH).into_owned();
-        factor.fixed_view_mut::<3, 3>(0, 0).copy_from(&p_pp);
-        let cross = p_pth * j_psi.transpose();
-        for a in 0..3 {
-            factor[(a, 5)] = cross[a];
-            factor[(5, a)] = cross[a];
-        }
-        factor[(5, 5)] = (j_psi * p_thth * j_psi.transpose())[0];
+        // The factor's covariance, from the old covariance; roll and pitch are exact by
+        // construction and get the configured tiny variance instead of zero.
+        let j_factor = switch_factor_jacobian(&self.q);
+        let factor = j_factor * self.pose_block(IP, ITH) * j_factor.transpose();
+        let mut factor = (factor + factor.transpose()) * 0.5;
         factor[(3, 3)] = self.config.switch_roll_pitch_variance_rad2;
         factor[(4, 4)] = self.config.switch_roll_pitch_variance_rad2;
 
         // The state.
-        let v_new = rz_t * self.v;
-        let mut jac = DMatrix::<f64>::zeros(n, n);
-        let put = |jac: &mut DMatrix<f64>, r: usize, c: usize, b: &Matrix3<f64>| {
-            jac.view_mut((r, c), (3, 3)).copy_from(b);
-        };
-        put(&mut jac, IV, IV, &rz_t);
-        put(&mut jac, IV, ITH, &(v_new.cross(&ez) * j_psi));
-        put(&mut jac, ITH, ITH, &(rz_t - ez * j_psi));
-        put(&mut jac, IBA, IBA, &Matrix3::identity());
-        put(&mut jac, IBG, IBG, &Matrix3::identity());
-        for i in 0..self.clones.len() {
-            let base = NX + 6 * i;
-            let c = &mut self.clones[i];
+        let jac = self.switch_jacobian();
+        for c in &mut self.clones {
             c.p = rz_t * (c.p - self.p);
             c.q = rz.inverse() * c.q;
-            put(&mut jac, base, base, &rz_t);
-            put(&mut jac, base, IP, &(-rz_t));
-            put(&mut jac, base, ITH, &(c.p.cross(&ez) * j_psi));
-            put(&mut jac, base + 3, base + 3, &rz_t);
-            put(&mut jac, base + 3, ITH, &(-ez * j_psi));
         }
         self.p = Vector3::zeros();
-        self.v = v_new;
+        self.v = rz_t * self.v;
         self.q = rz.inverse() * self.q;
         self.q.renormalize();
 
@@ -105,4 +80,43 @@ impl Filter {
             covariance: factor,
         }
     }
+
+    /// Jacobian of the switched error state (core and clones) with respect to the current one, at
+    /// the current state (see the module docs).
+    pub(crate) fn switch_jacobian(&self) -> DMatrix<f64> {
+        let n = self.dim();
+        let (_, _, yaw) = self.roll_pitch_yaw();
+        let rz_t = yaw_rotation(yaw).inverse().to_rotation_matrix().into_inner();
+        let j_psi: RowVector3<f64> = yaw_jacobian(&self.q);
+        let ez = Vector3::z();
+        let v_new = rz_t * self.v;
+        let mut jac = DMatrix::<f64>::zeros(n, n);
+        let put = |jac: &mut DMatrix<f64>, r: usize, c: usize, b: &Matrix3<f64>| {
+            jac.view_mut((r, c), (3, 3)).copy_from(b);
+        };
+        put(&mut jac, IV, IV, &rz_t);
+        put(&mut jac, IV, ITH, &(v_new.cross(&ez) * j_psi));
+        put(&mut jac, ITH, ITH, &(rz_t - ez * j_psi));
+        put(&mut jac, IBA, IBA, &Matrix3::identity());
+        put(&mut jac, IBG, IBG, &Matrix3::identity());
+        for (i, c) in self.clones.iter().enumerate() {
+            let base = NX + 6 * i;
+            let p_new = rz_t * (c.p - self.p);
+            put(&mut jac, base, base, &rz_t);
+            put(&mut jac, base, IP, &(-rz_t));
+            put(&mut jac, base, ITH, &(p_new.cross(&ez) * j_psi));
+            put(&mut jac, base + 3, base + 3, &rz_t);
+            put(&mut jac, base + 3, ITH, &(-ez * j_psi));
+        }
+        jac
+    }
+}
+
+/// Jacobian of the new frame `t_old_new = (p, Rz(ψ))` in `[δt; δθ]` (rotation right-multiplied)
+/// with respect to `[δp, δθ]` of the state: `δt = δp`, `δθ = (0, 0, J_ψ·δθ)`.
+pub(crate) fn switch_factor_jacobian(q: &UnitQuaternion<f64>) -> Matrix6<f64> {
+    let mut j = Matrix6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
+    j.fixed_view_mut::<1, 3>(5, 3).copy_from(&yaw_jacobian(q));
+    j
 }

@@ -20,7 +20,11 @@ pub mod error;
 pub mod factor;
 pub mod g2o;
 pub mod incremental;
+#[cfg(test)]
+mod jacobian_checks;
 mod linear;
+#[cfg(test)]
+mod numdiff;
 mod ordering;
 pub mod se3;
 pub mod values;

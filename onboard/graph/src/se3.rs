@@ -50,7 +50,9 @@ pub fn so3_left_jacobian_inv(phi: &Vector3<f64>) -> Matrix3<f64> {
     let c = if theta < SMALL_ANGLE_RAD {
         1.0 / 12.0 + theta2 / 720.0 + theta2 * theta2 / 30240.0
     } else {
-        1.0 / theta2 - (1.0 + theta.cos()) / (2.0 * theta * theta.sin())
+        // (1+cos θ)/sin θ as cot(θ/2), as GTSAM does: near π, 1 + cos θ cancels to ~(π−θ)²/2 and
+        // the quotient carried an absolute error of ε/(π−θ), which numdiff saw in `log`'s ρ.
+        1.0 / theta2 - 1.0 / (2.0 * theta * (0.5 * theta).tan())
     };
     let w = hat(phi);
     Matrix3::identity() - w * 0.5 + w * w * c

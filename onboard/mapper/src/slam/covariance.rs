@@ -6,6 +6,10 @@
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, SymmetricEigen};
 
+#[cfg(test)]
+#[path = "../../../graph/src/numdiff.rs"]
+mod numdiff;
+
 /// A filter pose covariance (`[δt local; δθ body]`) in the graph's convention.
 pub fn from_filter(t_local_body: &Isometry3<f64>, covariance: &Matrix6<f64>) -> Matrix6<f64> {
     let r_t: Matrix3<f64> = t_local_body.rotation.to_rotation_matrix().matrix().transpose();
@@ -59,4 +63,93 @@ pub fn is_psd(c: &Matrix6<f64>) -> bool {
         return false;
     }
     SymmetricEigen::new(symmetric(c)).eigenvalues.min() >= -1e-9 * scale
+}
+
+#[cfg(test)]
+mod tests {
+    //! The conversions are congruences `J·C·Jᵀ` with the Jacobian between the two tangent
+    //! conventions; here `J` is taken by central differences ([`super::numdiff`]) of the actual
+    //! perturbations, at poses with rotations near 0, generic and near π.
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+    use super::*;
+    use nalgebra::{Const, Translation3, UnitQuaternion, Vector3, Vector6};
+    use numdiff::{STEP, Tolerance};
+    use posegraph::se3;
+    use std::f64::consts::PI;
+
+    fn stack(a: &Vector3<f64>, b: &Vector3<f64>) -> Vector6<f64> {
+        Vector6::new(a.x, a.y, a.z, b.x, b.y, b.z)
+    }
+
+    /// Poses within 100 m, rotation angles near 0, generic and near π, deterministic.
+    fn poses() -> Vec<Isometry3<f64>> {
+        let mut out = Vec::new();
+        for (i, angle) in [0.0, 1e-7, 3e-3, 0.4, 1.7, 3.0, PI - 1e-3, PI - 1e-4].into_iter().enumerate() {
+            let s = i as f64;
+            let axis = Vector3::new((1.3 * s).sin(), (0.7 * s).cos(), 0.4).normalize();
+            let t = Vector3::new(100.0 * (0.9 * s).sin(), -40.0 + 11.0 * s, 3.0 * (2.1 * s).cos());
+            out.push(Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_scaled_axis(axis * angle)));
+        }
+        out
+    }
+
+    /// A full-rank covariance with correlations between every pair of axes.
+    fn covariance(seed: usize) -> Matrix6<f64> {
+        let b = Matrix6::from_fn(|i, j| ((i * 7 + j * 3 + seed) as f64 * 0.91).sin());
+        let c = b * b.transpose() * 0.01 + Matrix6::identity() * 1e-4;
+        (c + c.transpose()) * 0.5
+    }
+
+    fn check(name: &str, converted: &Matrix6<f64>, j: &Matrix6<f64>, c: &Matrix6<f64>) -> numdiff::Comparison {
+        let expected = j * c * j.transpose();
+        // Entries of J·C·Jᵀ err by |ΔJ|·|C|·|J| twice over; J's entries are ≤ 1.
+        let t = Tolerance::central(STEP, 100.0);
+        let comparison = numdiff::compare(converted, &expected, Tolerance { abs: 2.0 * t.abs * c.amax(), rel: t.rel });
+        assert!(comparison.passes(), "{name}: {comparison:?}");
+        comparison
+    }
+
+    #[test]
+    fn from_filter_is_the_tangent_jacobian() {
+        let mut worst = numdiff::Comparison::none();
+        for (k, t) in poses().iter().enumerate() {
+            // The filter's perturbation (δt in the local frame, δθ on the right) read as the
+            // graph's `Log(T⁻¹·T')` through the chart `[t; Log R]` of the small difference.
+            let j = numdiff::jacobian(Const::<6>, STEP, |d: &Vector6<f64>| {
+                let perturbed = Isometry3::from_parts(
+                    Translation3::from(t.translation.vector + d.fixed_rows::<3>(0)),
+                    numdiff::right_plus(&t.rotation, &d.fixed_rows::<3>(3).into_owned()),
+                );
+                let diff = t.inverse() * perturbed;
+                stack(&diff.translation.vector, &numdiff::rotation_log(&diff.rotation))
+            });
+            let c = covariance(k);
+            worst = worst.worse(check("from_filter", &from_filter(t, &c), &j, &c));
+        }
+        println!(
+            "covariance::from_filter: worst |error| {:.1e}, worst error/tolerance {:.1e}",
+            worst.max_abs_error, worst.worst_ratio
+        );
+    }
+
+    #[test]
+    fn to_filter_is_the_tangent_jacobian() {
+        let mut worst = numdiff::Comparison::none();
+        for (k, t) in poses().iter().enumerate() {
+            // The graph's retraction `T·Exp(ξ)` read as the filter's `[δt; δθ]`.
+            let j = numdiff::jacobian(Const::<6>, STEP, |xi: &Vector6<f64>| {
+                let perturbed = se3::retract(t, xi);
+                stack(
+                    &(perturbed.translation.vector - t.translation.vector),
+                    &numdiff::right_minus(&perturbed.rotation, &t.rotation),
+                )
+            });
+            let c = covariance(k + 3);
+            worst = worst.worse(check("to_filter", &to_filter(t, &c), &j, &c));
+        }
+        println!(
+            "covariance::to_filter: worst |error| {:.1e}, worst error/tolerance {:.1e}",
+            worst.max_abs_error, worst.worst_ratio
+        );
+    }
 }
