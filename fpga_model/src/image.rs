@@ -25,6 +25,45 @@ impl GrayImage {
         let y = y.clamp(0, self.height as isize - 1) as usize;
         self.pixels[y * self.width + x]
     }
+
+    /// The image as a borrowed view (what the matcher reads).
+    pub fn view(&self) -> GrayView<'_> {
+        GrayView { width: self.width, height: self.height, pixels: &self.pixels }
+    }
+}
+
+/// A borrowed 8-bit grayscale image, row-major, no row padding: lets the matcher read pixels
+/// where they already are (a shared-memory sample, one half of a stereo buffer) instead of
+/// copying them into a [`GrayImage`] first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GrayView<'a> {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: &'a [u8],
+}
+
+impl<'a> GrayView<'a> {
+    /// A view of `pixels` as a `width × height` image; refuses an empty image or a slice of
+    /// another length.
+    pub fn new(width: usize, height: usize, pixels: &'a [u8]) -> Result<Self, SgmError> {
+        let view = GrayView { width, height, pixels };
+        view.check()?;
+        Ok(view)
+    }
+
+    /// The fields are public, so every consumer re-checks what `new` checks.
+    pub(crate) fn check(&self) -> Result<(), SgmError> {
+        if self.width == 0 || self.height == 0 || self.width.checked_mul(self.height) != Some(self.pixels.len()) {
+            return Err(SgmError::BadImage { width: self.width, height: self.height, len: self.pixels.len() });
+        }
+        Ok(())
+    }
+}
+
+impl<'a> From<&'a GrayImage> for GrayView<'a> {
+    fn from(image: &'a GrayImage) -> Self {
+        image.view()
+    }
 }
 
 /// Fractional bits of an output disparity.

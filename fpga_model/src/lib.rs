@@ -17,7 +17,7 @@ pub mod reference;
 pub mod stages;
 
 pub use config::{PathMode, SgmConfig};
-pub use image::{DISPARITY_FRAC_BITS, DisparityImage, GrayImage, INVALID};
+pub use image::{DISPARITY_FRAC_BITS, DisparityImage, GrayImage, GrayView, INVALID};
 
 #[derive(Debug, thiserror::Error)]
 pub enum SgmError {

@@ -36,7 +36,7 @@ use lane::Lane;
 
 use crate::SgmError;
 use crate::config::{PathMode, SgmConfig};
-use crate::image::{DisparityImage, GrayImage, INVALID, check_pair};
+use crate::image::{DisparityImage, GrayImage, GrayView, INVALID, check_pair};
 use crate::stages::aggregate::effective_p2;
 
 /// Threads beyond this many give no further speed-up (and the machines have two cores).
@@ -225,12 +225,22 @@ impl Matcher {
         right: &GrayImage,
         out: &mut DisparityImage,
     ) -> Result<(), SgmError> {
-        for image in [left, right] {
-            if image.width == 0 || image.height == 0 || image.pixels.len() != image.width * image.height {
-                return Err(SgmError::BadImage { width: image.width, height: image.height, len: image.pixels.len() });
-            }
+        self.compute_views_into(left.view(), right.view(), out)
+    }
+
+    /// Matches a borrowed pair into `out` (resized to the frame if needed, else reused): the
+    /// entry point for pixels that live elsewhere (shared memory), which are read in place.
+    pub fn compute_views_into(
+        &mut self,
+        left: GrayView<'_>,
+        right: GrayView<'_>,
+        out: &mut DisparityImage,
+    ) -> Result<(), SgmError> {
+        left.check()?;
+        right.check()?;
+        if (left.width, left.height) != (right.width, right.height) {
+            return Err(SgmError::SizeMismatch { left: (left.width, left.height), right: (right.width, right.height) });
         }
-        check_pair(left, right)?;
         if (left.width, left.height) != (self.width, self.height) {
             return Err(SgmError::InvalidConfig(format!(
                 "matcher is for {}x{} images, got {}x{}",
@@ -241,12 +251,12 @@ impl Matcher {
         let Matcher { padded_left, padded_right, pre_median, engine, config, .. } = self;
         match engine {
             EngineKind::Byte(e) => {
-                pad_images(&e.geometry, left, right, padded_left, padded_right);
-                run_frame::<u8, 64>(e, isa, config.paths, left, padded_left, padded_right, pre_median);
+                pad_images(&e.geometry, left.pixels, right.pixels, padded_left, padded_right);
+                run_frame::<u8, 64>(e, isa, config.paths, left.pixels, padded_left, padded_right, pre_median);
             }
             EngineKind::Word(e) => {
-                pad_images(&e.geometry, left, right, padded_left, padded_right);
-                run_frame::<u16, 32>(e, isa, config.paths, left, padded_left, padded_right, pre_median);
+                pad_images(&e.geometry, left.pixels, right.pixels, padded_left, padded_right);
+                run_frame::<u16, 32>(e, isa, config.paths, left.pixels, padded_left, padded_right, pre_median);
             }
         }
         out.width = self.width;
@@ -281,12 +291,11 @@ pub fn compute(left: &GrayImage, right: &GrayImage, config: &SgmConfig) -> Resul
 
 /// Copies the images into rows with replicated borders (the census clamps coordinates); the
 /// right image is mirrored left-right (see [`kernels`]).
-fn pad_images(g: &Geometry, left: &GrayImage, right: &GrayImage, padded_left: &mut [u8], padded_right: &mut [u8]) {
+fn pad_images(g: &Geometry, left: &[u8], right: &[u8], padded_left: &mut [u8], padded_right: &mut [u8]) {
     let w = g.width;
     for ((src_left, src_right), (dst_left, dst_right)) in left
-        .pixels
         .chunks_exact(w)
-        .zip(right.pixels.chunks_exact(w))
+        .zip(right.chunks_exact(w))
         .zip(padded_left.chunks_exact_mut(g.pad_stride).zip(padded_right.chunks_exact_mut(g.pad_stride)))
     {
         let (first_left, last_left) = (src_left[0], src_left[w - 1]);
@@ -343,13 +352,13 @@ fn run_frame<T: Lane, const L: usize>(
     engine: &mut Engine<T>,
     isa: Isa,
     paths: PathMode,
-    left: &GrayImage,
+    left: &[u8],
     padded_left: &[u8],
     padded_right: &[u8],
     pre_median: &mut [u16],
 ) {
     let Engine { geometry, params, passes, scratches, volume } = engine;
-    let frame = Frame { geometry, left: &left.pixels, padded_left, padded_right };
+    let frame = Frame { geometry, left, padded_left, padded_right };
     let params = &*params;
     for pass in passes.iter() {
         pass.reset();
