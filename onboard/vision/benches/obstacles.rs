@@ -1,21 +1,19 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 //! Time of `ObstacleClassifier::classify` per 1024×508 depth image on one thread, on SGM depth
 //! of frames rendered by the simulator (Moon preset, standing with a pan sweep, then driving),
-//! against the 100 ms frame period of 10 Hz stereo. SGM runs beforehand and is not timed (the
-//! FPGA computes it on the rover); the speckle filter that follows it on the host is timed
-//! separately. Run: `cargo bench -p vision --bench obstacles`.
+//! against the 100 ms frame period of 10 Hz stereo. Depth comes from the on-board
+//! `DepthPipeline`: its SGM is not timed (the FPGA computes it on the rover); the speckle filter
+//! that follows it on the host is timed separately. Run: `cargo bench -p vision --bench obstacles`.
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage};
 use hal::sensor::{SensorEvent, SensorSource, StereoFrame};
 use sim::driver::SimSensorSource;
 use sim::scenario::{ScenarioOptions, preset};
 use sim::world::World;
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
-use vision::{DepthImage, SpeckleFilter, StereoGeometry, depth_sgm_config};
+use vision::{DepthOptions, DepthPipeline};
 
 const FRAMES: usize = 30;
 const FRAME_PERIOD_MS: f64 = 100.0;
@@ -33,19 +31,14 @@ fn main() {
     let world: Arc<World> = World::build(&scenario).unwrap();
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
     let calibration = source.stereo_calibration().unwrap();
-    let geometry = StereoGeometry::from_calibration(&calibration);
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
-    let mut matcher = Matcher::new(depth_sgm_config(), w, h, 2).unwrap();
+    let mut stereo = DepthPipeline::new(&calibration, DepthOptions { threads: 2, ..DepthOptions::default() }).unwrap();
     let mut frame = StereoFrame::default();
     let mut inputs = Vec::new();
     while inputs.len() < FRAMES {
         match source.next_event(&mut frame).unwrap() {
             Some(SensorEvent::Stereo) => {
-                let mut disparity = DisparityImage { width: w, height: h, data: vec![0; w * h] };
-                let left = GrayImage::new(w, h, frame.left.clone()).unwrap();
-                let right = GrayImage::new(w, h, frame.right.clone()).unwrap();
-                matcher.compute_into(&left, &right, &mut disparity).unwrap();
-                inputs.push((disparity, world.t_world_cam(0, frame.stamp_ns).unwrap()));
+                inputs.push((frame.left.clone(), frame.right.clone(), world.t_world_cam(0, frame.stamp_ns).unwrap()));
             }
             Some(_) => {}
             None => break,
@@ -53,22 +46,16 @@ fn main() {
     }
     let mut classifier = ObstacleClassifier::new(ObstacleConfig::default()).unwrap();
     let mut labels = PixelLabels::default();
-    let mut speckle = SpeckleFilter::for_image(w, h);
-    let mut disparity = DisparityImage { width: w, height: h, data: vec![0; w * h] };
-    let mut depth = DepthImage::new(w, h);
     let (mut wall_ms, mut cpu_ms, mut speckle_ms) = (Vec::new(), Vec::new(), Vec::new());
     // Two passes; the first pass's first call sizes the buffers, the second pass allocates nothing.
     for pass in 0..2 {
-        for (raw, t_world_cam) in &inputs {
-            disparity.data.copy_from_slice(&raw.data);
-            let start = Instant::now();
-            std::hint::black_box(speckle.apply(&mut disparity));
+        for (left, right, t_world_cam) in &inputs {
+            let depth_stats = stereo.compute(left, right).unwrap();
             if pass == 1 {
-                speckle_ms.push(start.elapsed().as_secs_f64() * 1e3);
+                speckle_ms.push(depth_stats.speckle_ms);
             }
-            depth.fill_from_disparity(&disparity, &geometry);
             let (start, cpu_start) = (Instant::now(), thread_cpu_ns());
-            let stats = classifier.classify(&depth, &geometry, t_world_cam, &mut labels);
+            let stats = classifier.classify(stereo.depth(), stereo.geometry(), t_world_cam, &mut labels);
             std::hint::black_box(stats);
             if pass == 1 {
                 wall_ms.push(start.elapsed().as_secs_f64() * 1e3);

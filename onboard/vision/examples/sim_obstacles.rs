@@ -36,8 +36,7 @@ use std::collections::{HashMap, HashSet};
 use std::time::Instant;
 
 use eval::map::{HeightGrid, ObstacleMatching, TrueObstacle, evaluate_obstacles, obstacles_in_mapped_area};
-use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use fpga_model::SgmConfig;
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion};
 use sim::motion::wheel_contact_plane;
 use sim::render::Renderer;
@@ -45,7 +44,7 @@ use sim::robot::ROVER_CHASSIS_HEIGHT_M;
 use sim::scenario::{ScenarioOptions, preset};
 use sim::world::{ObstacleMap, World};
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
-use vision::{DepthImage, SpeckleFilter, StereoGeometry, depth_sgm_config};
+use vision::{DepthOptions, DepthPipeline, SpeckleFilter, StereoGeometry, depth_sgm_config};
 
 /// Evaluation radius around the camera (the "within 5 m").
 pub const RADIUS_M: f64 = 5.0;
@@ -466,20 +465,16 @@ pub struct Evaluator<'w> {
     truth: &'w Truth,
     config: ObstacleConfig,
     renderer: Renderer,
-    matcher: Matcher,
-    geometry: StereoGeometry,
+    /// SGM, the speckle filter and depth: the on-board sequence.
+    stereo: DepthPipeline,
     width: usize,
     height: usize,
     left: Vec<u8>,
     right: Vec<u8>,
-    disparity: DisparityImage,
-    depth: DepthImage,
     classifier: ObstacleClassifier,
     labels: PixelLabels,
     true_height_m: Vec<f32>,
     true_step_m: Vec<f32>,
-    /// Speckle removal between SGM and depth.
-    speckle: Option<SpeckleFilter>,
     pub false_clusters: Vec<FalseCluster>,
     /// Classify the renderer's exact depth instead of SGM's: the classifier's ceiling.
     pub true_depth: bool,
@@ -511,24 +506,23 @@ impl<'w> Evaluator<'w> {
             baseline_m: camera.baseline_m,
         };
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let options = DepthOptions { sgm, despeckle: false, threads };
+        let mut stereo = DepthPipeline::with_geometry(geometry, width, height, options).unwrap();
+        stereo.set_speckle_filter(speckle);
         Evaluator {
             world,
             truth,
             config,
             renderer: Renderer::new(camera, world.scenario.sensor),
-            matcher: Matcher::new(sgm, width, height, threads).unwrap(),
-            geometry,
+            stereo,
             width,
             height,
             left: vec![0; width * height],
             right: vec![0; width * height],
-            disparity: DisparityImage { width, height, data: vec![0; width * height] },
-            depth: DepthImage::new(width, height),
             classifier: ObstacleClassifier::new(config).unwrap(),
             labels: PixelLabels::default(),
             true_height_m: Vec::new(),
             true_step_m: Vec::new(),
-            speckle,
             false_clusters: Vec::new(),
             true_depth: false,
             dumps: 0,
@@ -558,7 +552,7 @@ impl<'w> Evaluator<'w> {
         for y in 0..h {
             for x in 0..w {
                 let i = y * w + x;
-                let (z, zt) = (self.depth.depth_m[i], truth[i]);
+                let (z, zt) = (self.stereo.depth().depth_m[i], truth[i]);
                 let b = (y * 4 / h, x * 4 / w);
                 if z.is_finite() && zt.is_finite() && z < zt - 0.3f32.max(0.1 * zt) {
                     near_bins[b.0][b.1] += 1;
@@ -569,14 +563,19 @@ impl<'w> Evaluator<'w> {
                     if !(z.is_finite() && zt.is_finite() && (z - zt).abs() < 0.2) {
                         edge_wrong += 1;
                         if edge_wrong < 6 {
-                            println!("   edge px ({x},{y}) sgm {z:.2} true {zt:.2} disp {}", self.disparity.data[i]);
+                            println!(
+                                "   edge px ({x},{y}) sgm {z:.2} true {zt:.2} disp {}",
+                                self.stereo.disparity().data[i]
+                            );
                         }
                     }
                 }
             }
         }
         let mut rgb = Vec::with_capacity(3 * w * h);
-        for (((&g, &z), &zt), &flags) in self.left.iter().zip(&self.depth.depth_m).zip(truth).zip(&self.labels.flags) {
+        for (((&g, &z), &zt), &flags) in
+            self.left.iter().zip(&self.stereo.depth().depth_m).zip(truth).zip(&self.labels.flags)
+        {
             let bad = z.is_finite() && zt.is_finite() && (z - zt).abs() > 0.3f32.max(0.1 * zt);
             let obstacle = flags & PixelLabels::OBSTACLE != 0;
             rgb.extend_from_slice(&match (obstacle, bad) {
@@ -600,20 +599,13 @@ impl<'w> Evaluator<'w> {
         let t_world_cam = viewpoint.t_world_body * robot.model().t_body_cam(0.0, viewpoint.tilt_rad);
         let scene = self.world.scene(&[]);
         self.renderer.render_stereo(&scene, &t_world_cam, noise_seed, &mut self.left, &mut self.right);
-        let (w, h) = (self.width, self.height);
-        let left = GrayImage::new(w, h, self.left.clone()).unwrap();
-        let right = GrayImage::new(w, h, self.right.clone()).unwrap();
-        self.matcher.compute_into(&left, &right, &mut self.disparity).unwrap();
-        if let Some(filter) = &mut self.speckle {
-            filter.apply(&mut self.disparity);
-        }
-        self.depth.fill_from_disparity(&self.disparity, &self.geometry);
+        self.stereo.compute(&self.left, &self.right).unwrap();
         self.measure_disparity_error(tally);
         if self.true_depth {
-            self.depth.depth_m.copy_from_slice(self.renderer.depth_m());
+            self.stereo.depth_mut().depth_m.copy_from_slice(self.renderer.depth_m());
         }
         let start = Instant::now();
-        self.classifier.classify(&self.depth, &self.geometry, &t_world_cam, &mut self.labels);
+        self.classifier.classify(self.stereo.depth(), self.stereo.geometry(), &t_world_cam, &mut self.labels);
         tally.classify_ms.push(start.elapsed().as_secs_f64() * 1e3);
         tally.frames += 1;
         self.score(&t_world_cam, tally);
@@ -622,11 +614,10 @@ impl<'w> Evaluator<'w> {
     /// Adds the SGM disparity error of this frame's pixels to `tally` (truth: the rendered
     /// z-depth, `d = f·b / z`), for pixels whose true depth is within the classifier's range.
     fn measure_disparity_error(&self, tally: &mut Tally) {
-        let fb = self.geometry.fx_px * self.geometry.baseline_m;
-        let max_depth_m = self
-            .config
-            .error_model(self.geometry.fx_px, self.geometry.baseline_m)
-            .max_depth_m(self.config.max_depth_error_m);
+        let geometry = self.stereo.geometry();
+        let fb = geometry.fx_px * geometry.baseline_m;
+        let max_depth_m =
+            self.config.error_model(geometry.fx_px, geometry.baseline_m).max_depth_m(self.config.max_depth_error_m);
         let bins = (2.0 * DISPARITY_SPAN_PX / DISPARITY_BIN_PX).round() as usize;
         tally.disparity_error_bins.resize(bins, 0);
         let truth = self.renderer.depth_m();
@@ -634,7 +625,7 @@ impl<'w> Evaluator<'w> {
             if !(zt.is_finite() && zt > 0.0 && f64::from(zt) <= max_depth_m) {
                 continue;
             }
-            let Some(d) = self.disparity.get_px(i % self.width, i / self.width) else {
+            let Some(d) = self.stereo.disparity().get_px(i % self.width, i / self.width) else {
                 tally.disparity_invalid += 1;
                 continue;
             };

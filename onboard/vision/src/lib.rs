@@ -8,6 +8,7 @@
 //! - [`odometry`]: keyframe stereo visual odometry (thesis §3.2, §4.1.1) producing [`VoDelta`]s.
 //! - [`depth`], [`obstacles`]: depth images and obstacle classification on them (thesis §5.1.1):
 //!   negative edges, stereo-error-adaptive steps on a 5 cm height map, the rolling local map.
+//! - [`depth_pipeline`]: the one SGM → speckle filter → depth sequence ([`DepthPipeline`]).
 //!
 //! # Frames and conventions
 //!
@@ -19,10 +20,12 @@
 //! `ξ = [δt; δθ]` (translation first, then rotation, metres and radians) of `t_a_b` with
 //! `t_true = t̂ + δt` (in frame `a`) and `R_true = R̂ · Exp(δθ)` (δθ in frame `b`).
 //!
-//! This crate does no I/O: images come in as slices, results go out as values.
+//! This crate does no I/O: images come in as borrowed slices ([`ImageView`], [`StereoView`]), results
+//! go out as values.
 
 pub mod delta;
 pub mod depth;
+pub mod depth_pipeline;
 pub mod features;
 pub mod geometry;
 pub mod image;
@@ -37,7 +40,8 @@ pub mod stereo_match;
 
 pub use delta::VoDelta;
 pub use depth::{DEPTH_UNIQUENESS_PERCENT, DepthImage, StereoGeometry, depth_sgm_config};
-pub use image::ImageView;
+pub use depth_pipeline::{DepthError, DepthFrameStats, DepthOptions, DepthPipeline};
+pub use image::{ImageView, StereoView};
 pub use odometry::{StereoOdometry, VoConfig, VoError, VoOutput, VoStats};
 pub use rectify::{Rectifier, RectifyError};
 pub use speckle::SpeckleFilter;

@@ -40,6 +40,7 @@ use crate::features::{FeatureConfig, FeatureDetector, Keypoint};
 use crate::geometry::{
     Correspondence, PoseEstimate, PoseEstimationConfig, PoseEstimator, camera_delta_to_body, triangulate,
 };
+use crate::image::StereoView;
 use crate::keyframes::{KeyframeHistory, Landmark, MAX_KEYFRAMES, NO_LANDMARK, Track, coverage_cells};
 use crate::klt::{KltConfig, KltTracker};
 use crate::pyramid::Pyramid;
@@ -284,9 +285,19 @@ impl StereoOdometry {
         disparity: Option<&DisparityImage>,
         prior_t_keyframe_current_body: Option<&Isometry3<f64>>,
     ) -> Result<VoOutput, VoError> {
+        self.process_view(StereoView::of(frame), disparity, prior_t_keyframe_current_body)
+    }
+
+    /// As [`StereoOdometry::process`], reading the pair where it lies (e.g. in shared memory).
+    pub fn process_view(
+        &mut self,
+        frame: StereoView<'_>,
+        disparity: Option<&DisparityImage>,
+        prior_t_keyframe_current_body: Option<&Isometry3<f64>>,
+    ) -> Result<VoOutput, VoError> {
         self.check_input(frame, disparity)?;
         let (w, h) = (self.width, self.height);
-        let Some(left) = ImageView::new(w, h, &frame.left) else {
+        let Some(left) = ImageView::new(w, h, frame.left) else {
             return Err(VoError::BadInput("left image size".into()));
         };
         self.current.build(left);
@@ -341,7 +352,7 @@ impl StereoOdometry {
         }
     }
 
-    fn check_input(&self, frame: &StereoFrame, disparity: Option<&DisparityImage>) -> Result<(), VoError> {
+    fn check_input(&self, frame: StereoView<'_>, disparity: Option<&DisparityImage>) -> Result<(), VoError> {
         let (w, h) = (self.width, self.height);
         if frame.width_px as usize != w || frame.height_px as usize != h {
             return Err(VoError::BadInput(format!(
@@ -521,7 +532,7 @@ impl StereoOdometry {
     /// becomes a new keyframe.
     fn output_delta(
         &mut self,
-        frame: &StereoFrame,
+        frame: StereoView<'_>,
         disparity: Option<&DisparityImage>,
         e: SlotEstimate,
         t_body_cam: Isometry3<f64>,
@@ -556,8 +567,8 @@ impl StereoOdometry {
             ..VoStats::default()
         };
         if make_keyframe {
-            let left = ImageView { width: self.width, height: self.height, data: &frame.left };
-            let right = ImageView { width: self.width, height: self.height, data: &frame.right };
+            let left = ImageView { width: self.width, height: self.height, data: frame.left };
+            let right = ImageView { width: self.width, height: self.height, data: frame.right };
             let slot = self.history.begin_keyframe(frame.stamp_ns, t_odom_body, t_body_cam, self.frames, Some(e.slot));
             self.populate_keyframe(slot, left, right, disparity);
             self.active = slot;
@@ -569,14 +580,14 @@ impl StereoOdometry {
     /// Clears the history and makes the frame the only keyframe.
     fn start_fresh(
         &mut self,
-        frame: &StereoFrame,
+        frame: StereoView<'_>,
         disparity: Option<&DisparityImage>,
         t_odom_body: Isometry3<f64>,
         t_body_cam: Isometry3<f64>,
     ) -> VoStats {
         self.history.clear();
-        let left = ImageView { width: self.width, height: self.height, data: &frame.left };
-        let right = ImageView { width: self.width, height: self.height, data: &frame.right };
+        let left = ImageView { width: self.width, height: self.height, data: frame.left };
+        let right = ImageView { width: self.width, height: self.height, data: frame.right };
         let slot = self.history.begin_keyframe(frame.stamp_ns, t_odom_body, t_body_cam, self.frames, None);
         self.populate_keyframe(slot, left, right, disparity);
         self.active = slot;
@@ -704,7 +715,7 @@ impl StereoOdometry {
     /// Bookkeeping common to every output: motion model, pyramid swap, counters.
     fn finish(
         &mut self,
-        frame: &StereoFrame,
+        frame: StereoView<'_>,
         t_odom_body: Isometry3<f64>,
         delta: Option<VoDelta>,
         new_keyframe: bool,

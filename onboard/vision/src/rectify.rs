@@ -31,6 +31,8 @@
 use hal::sensor::{CameraCalibration, Distortion, Pinhole, StereoCalibration, StereoFrame};
 use nalgebra::{Isometry3, Matrix3, Rotation3, UnitQuaternion, Vector3};
 
+use crate::image::StereoView;
+
 /// Larger images are rejected rather than allocating gigabytes of maps (64 Mpx).
 const MAX_PIXELS: u64 = 1 << 26;
 /// A pose's quaternion must be this close to unit norm.
@@ -521,6 +523,11 @@ impl Rectifier {
 
     /// Rectifies `raw` into `out` (resized; allocation reused). Stamps and head angles are copied.
     pub fn rectify(&self, raw: &StereoFrame, out: &mut StereoFrame) -> Result<(), RectifyError> {
+        self.rectify_view(StereoView::of(raw), out)
+    }
+
+    /// As [`Rectifier::rectify`], reading the raw pair where it lies (e.g. in shared memory).
+    pub fn rectify_view(&self, raw: StereoView<'_>, out: &mut StereoFrame) -> Result<(), RectifyError> {
         let (want_w, want_h) = (self.rectified.left.width_px, self.rectified.left.height_px);
         if (raw.width_px, raw.height_px) != (want_w, want_h) {
             return Err(RectifyError::FrameSize { got_w: raw.width_px, got_h: raw.height_px, want_w, want_h });
@@ -538,12 +545,12 @@ impl Rectifier {
         out.tilt_rad = raw.tilt_rad;
         match &self.mapping {
             Mapping::Identity => {
-                out.left.copy_from_slice(&raw.left);
-                out.right.copy_from_slice(&raw.right);
+                out.left.copy_from_slice(raw.left);
+                out.right.copy_from_slice(raw.right);
             }
             Mapping::Remap { tables, .. } => {
-                tables[0].apply(&raw.left, &mut out.left);
-                tables[1].apply(&raw.right, &mut out.right);
+                tables[0].apply(raw.left, &mut out.left);
+                tables[1].apply(raw.right, &mut out.right);
             }
         }
         Ok(())

@@ -49,6 +49,13 @@ impl SpeckleFilter {
         SpeckleFilter::new(((400.0 * area_ratio).round() as usize).max(4), 1.0)
     }
 
+    /// Sizes the buffers for images of up to `pixels` pixels now, so that filtering allocates
+    /// nothing even on the first image (a region can grow to the whole image).
+    pub fn reserve(&mut self, pixels: usize) {
+        self.labels.reserve(pixels.saturating_sub(self.labels.len()));
+        self.region.reserve(pixels.saturating_sub(self.region.len()));
+    }
+
     /// Invalidates the small regions of `disparity` in place; returns how many pixels it dropped.
     pub fn apply(&mut self, disparity: &mut DisparityImage) -> usize {
         let (width, height) = (disparity.width, disparity.height);

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use fpga_model::{DisparityImage, GrayView, SgmConfig};
 use hal::sensor::{
     CameraCalibration, Distortion, Pinhole, SensorEvent, SensorSource, StereoCalibration, StereoFrame, r_flu_optical,
 };
@@ -16,7 +16,7 @@ use sim::driver::SimSensorSource;
 use sim::motion::PhaseKind;
 use sim::scenario::{ScenarioOptions, preset};
 use sim::world::World;
-use vision::{StereoOdometry, VoConfig, VoOutput};
+use vision::{StereoOdometry, StereoView, VoConfig, VoOutput};
 
 const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight");
 
@@ -133,9 +133,9 @@ fn run_kitti(use_sgm: bool) -> (Scores, Vec<VoOutput>) {
     for frame in &kitti.frames {
         let disparity = match matcher.as_mut() {
             Some(m) => {
-                let left = GrayImage::new(w, h, frame.left.clone()).unwrap();
-                let right = GrayImage::new(w, h, frame.right.clone()).unwrap();
-                m.compute_into(&left, &right, &mut map).unwrap();
+                let (left, right) =
+                    (GrayView::new(w, h, &frame.left).unwrap(), GrayView::new(w, h, &frame.right).unwrap());
+                m.compute_views_into(left, right, &mut map).unwrap();
                 Some(&map)
             }
             None => None,
@@ -198,6 +198,27 @@ fn rejects_unrectified_calibration_and_mismatched_frames() {
     assert!(first.new_keyframe && first.delta.is_none() && !first.reset);
     // Time must move forward.
     assert!(odometry.process(&kitti.frames[0], None, None).is_err());
+}
+
+/// A pair read in place (both images halves of one buffer, as a shared-memory sample) gives the
+/// outputs of the owned frame, bit for bit.
+#[test]
+fn process_view_of_one_shared_buffer_equals_process_of_the_frame() {
+    let kitti = load_kitti();
+    let mut owned = StereoOdometry::new(VoConfig::default(), &kitti.calibration).unwrap();
+    let mut viewed = StereoOdometry::new(VoConfig::default(), &kitti.calibration).unwrap();
+    let mut sample = Vec::new();
+    for frame in kitti.frames.iter().take(12) {
+        sample.clear();
+        sample.extend_from_slice(&frame.left);
+        sample.extend_from_slice(&frame.right);
+        let (left, right) = sample.split_at(frame.left.len());
+        let view = StereoView { left, right, ..StereoView::of(frame) };
+        let expected = owned.process(frame, None, None).unwrap();
+        assert_eq!(viewed.process_view(view, None, None).unwrap(), expected, "frame {}", frame.sequence);
+    }
+    let short = StereoView { right: &sample[kitti.frames[12].left.len() + 1..], ..StereoView::of(&kitti.frames[12]) };
+    assert!(viewed.process_view(short, None, None).is_err());
 }
 
 /// The delta error in the crate convention: `[t_true − t̂; Log(R̂ᵀ R_true)]`.

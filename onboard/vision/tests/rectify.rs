@@ -7,6 +7,7 @@ use hal::asl::{AslDataset, pair_calibration};
 use hal::sensor::{CameraCalibration, Distortion, Pinhole, SensorSource, StereoCalibration, StereoFrame};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use proptest::prelude::*;
+use vision::StereoView;
 use vision::rectify::{Rectifier, RectifyError, StereoSide, distort_normalized, undistort_normalized};
 
 const MH01: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/euroc/mh_01_handheld");
@@ -385,6 +386,23 @@ fn rectified_output_keeps_the_frame_metadata_and_reuses_its_buffers() {
     assert_ne!(out.left, second.left);
     let mean = |image: &[u8]| image.iter().map(|&g| f64::from(g)).sum::<f64>() / image.len() as f64;
     assert!((mean(&out.left) - mean(&second.left)).abs() < 10.0);
+}
+
+/// A raw pair read in place (both images halves of one buffer, as a shared-memory sample)
+/// rectifies to the owned frame's result; wrong lengths are refused as for a frame.
+#[test]
+fn a_view_of_one_shared_buffer_rectifies_like_the_frame() {
+    let rectifier = &*MH01_RECTIFIER;
+    let raw = &load_pairs(&[2])[0];
+    let mut sample = raw.left.clone();
+    sample.extend_from_slice(&raw.right);
+    let (left, right) = sample.split_at(raw.left.len());
+    let (mut expected, mut got) = (StereoFrame::default(), StereoFrame::default());
+    rectifier.rectify(raw, &mut expected).unwrap();
+    rectifier.rectify_view(StereoView { left, right, ..StereoView::of(raw) }, &mut got).unwrap();
+    assert_eq!(got, expected);
+    let short = StereoView { right: &right[1..], ..StereoView::of(raw) };
+    assert!(matches!(rectifier.rectify_view(short, &mut got), Err(RectifyError::BufferLength { .. })));
 }
 
 #[test]
