@@ -1,5 +1,5 @@
 //! Composed-map height error on a short simulated Moon drive (issue 8), along the ground-truth
-//! poses: SGM depth (`fpga_model`, the on-board uniqueness margin and speckle filter), the
+//! poses: the on-board SGM depth (`vision::DepthPipeline`: uniqueness margin, speckle filter), the
 //! obstacle classifier's 2.5D consistency test, 7 m submaps from the `Submapper`, composition
 //! by `GlobalMap`, scored against the true heightfield within 5 m of the path and away from
 //! rocks. The filter-pose variant needs the VIO pipeline:
@@ -10,8 +10,6 @@ use std::sync::Arc;
 
 use eval::map::{HeightGrid, TrueObstacle};
 use filter::FrameSwitch;
-use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage};
 use hal::sensor::{SensorEvent, SensorSource, StereoFrame};
 use mapper::global::{GlobalMap, GlobalMapConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
@@ -20,7 +18,6 @@ use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Vector3};
 use sim::driver::SimSensorSource;
 use sim::scenario::{self, ScenarioOptions};
 use sim::world::World;
-use vision::depth::{DepthImage, StereoGeometry};
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
 
 fn gravity_aligned(t_world_body: &Isometry3<f64>) -> Isometry3<f64> {
@@ -53,14 +50,8 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
     let world = World::build(&scenario).unwrap();
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).unwrap();
     let c = source.stereo_calibration().unwrap();
-    let geometry = StereoGeometry::from_calibration(&c);
-    let (w, h) = (c.left.width_px as usize, c.left.height_px as usize);
-    let mut matcher = Matcher::new(vision::depth_sgm_config(), w, h, 2).unwrap();
-    let mut speckle = vision::SpeckleFilter::for_image(w, h);
-    let mut left = GrayImage { width: w, height: h, pixels: vec![0; w * h] };
-    let mut right = GrayImage { width: w, height: h, pixels: vec![0; w * h] };
-    let mut disparity = DisparityImage { width: w, height: h, data: vec![0; w * h] };
-    let mut depth = DepthImage::new(w, h);
+    let mut stereo = vision::DepthPipeline::new(&c, vision::DepthOptions { threads: 2, ..Default::default() }).unwrap();
+    let geometry = *stereo.geometry();
     let mut classifier = ObstacleClassifier::new(ObstacleConfig::default()).unwrap();
     let mut labels = PixelLabels::default();
     let integrator = DepthIntegrator::new(IntegratorConfig::default(), geometry);
@@ -84,12 +75,9 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
         if path.last().is_none_or(|q| (q - xy).norm() > 0.1) {
             path.push(xy);
         }
-        left.pixels.copy_from_slice(&frame.left);
-        right.pixels.copy_from_slice(&frame.right);
-        matcher.compute_into(&left, &right, &mut disparity).unwrap();
-        speckle.apply(&mut disparity);
-        depth.fill_from_disparity(&disparity, &geometry);
-        classifier.classify(&depth, &geometry, &t_world_cam, &mut labels);
+        stereo.compute(&frame.left, &frame.right).unwrap();
+        let depth = stereo.depth_mut();
+        classifier.classify(depth, &geometry, &t_world_cam, &mut labels);
         // Pixels in range that the 2.5D consistency test rejected: SGM mismatches (black sky).
         for (i, z) in depth.depth_m.iter_mut().enumerate() {
             if z.is_finite() && labels.flags[i] & PixelLabels::TOO_FAR == 0 && classifier.pixel_height_m(i).is_none() {
@@ -111,7 +99,7 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
             t_world_submap = Some(next);
         }
         let origin = t_world_submap.unwrap();
-        submapper.integrate(stamp_ns, &depth, Some(&labels), Some(&frame.left), &(origin.inverse() * t_world_cam));
+        submapper.integrate(stamp_ns, depth, Some(&labels), Some(&frame.left), &(origin.inverse() * t_world_cam));
         frames += 1;
     }
     let origin = t_world_submap.unwrap();

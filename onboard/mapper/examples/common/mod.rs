@@ -5,12 +5,12 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use fpga_model::SgmConfig;
 use hal::sensor::{StereoCalibration, StereoFrame};
 use mapper::cloud::MapPoint;
 use nalgebra::{Isometry3, Point3, Vector3};
 use vision::depth::{DepthImage, StereoGeometry};
+use vision::{DepthOptions, DepthPipeline};
 
 pub type BoxError = Box<dyn std::error::Error>;
 
@@ -27,36 +27,23 @@ pub fn geometry_of(calibration: &StereoCalibration) -> StereoGeometry {
     StereoGeometry::from_calibration(calibration)
 }
 
-/// SGM (the FPGA model's fast path) from rectified pairs to depth, buffers reused.
+/// SGM (the FPGA model's default configuration, no speckle filter) from rectified pairs to
+/// depth through the on-board [`DepthPipeline`], buffers reused.
 pub struct StereoDepth {
-    matcher: Matcher,
-    left: GrayImage,
-    right: GrayImage,
-    disparity: DisparityImage,
-    pub depth: DepthImage,
-    geometry: StereoGeometry,
+    pipeline: DepthPipeline,
 }
 
 impl StereoDepth {
     pub fn new(disparities: u16, width: usize, height: usize, geometry: StereoGeometry) -> Result<Self, BoxError> {
-        let config = SgmConfig { disparities, ..SgmConfig::default() };
+        let sgm = SgmConfig { disparities, ..SgmConfig::default() };
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        Ok(StereoDepth {
-            matcher: Matcher::new(config, width, height, threads)?,
-            left: GrayImage { width, height, pixels: vec![0; width * height] },
-            right: GrayImage { width, height, pixels: vec![0; width * height] },
-            disparity: DisparityImage { width, height, data: vec![0; width * height] },
-            depth: DepthImage::new(width, height),
-            geometry,
-        })
+        let options = DepthOptions { sgm, despeckle: false, threads };
+        Ok(StereoDepth { pipeline: DepthPipeline::with_geometry(geometry, width, height, options)? })
     }
 
     pub fn compute(&mut self, frame: &StereoFrame) -> Result<&DepthImage, BoxError> {
-        self.left.pixels.copy_from_slice(&frame.left);
-        self.right.pixels.copy_from_slice(&frame.right);
-        self.matcher.compute_into(&self.left, &self.right, &mut self.disparity)?;
-        self.depth.fill_from_disparity(&self.disparity, &self.geometry);
-        Ok(&self.depth)
+        self.pipeline.compute(&frame.left, &frame.right)?;
+        Ok(self.pipeline.depth())
     }
 }
 
