@@ -1,5 +1,5 @@
 //! The ground station through the emulated ground link of the process runner
-//! (`onboard::process::relay`): a robot's UDP ground link → relay (200 ms one way, a 6 s outage)
+//! (`sil::relay`): a robot's UDP ground link → relay (200 ms one way, a 6 s outage)
 //! → the engine's UDP socket. During the outage the robot turns STALE and a command waits in
 //! the queue; when the link returns the robot is fresh again and the command goes out, is
 //! verified by the robot's endpoint (HMAC) and its acknowledgement reaches the view.
@@ -15,10 +15,10 @@ use groundstation::view::{CommandState, Staleness, TeamView, UiAction};
 use hal::emulator::EmulatorConfig;
 use hal::udp::UdpLink;
 use model_common::*;
-use onboard::nodes::comms::GroundEnd;
-use onboard::process::relay::{GroundLinkEmulation, Relay};
 use protocol::NodeId;
 use protocol::message::{CommandOutcome, Mode};
+use sil::ground_end::GroundEnd;
+use sil::relay::{GroundLinkEmulation, Relay};
 
 const OUTAGE_MS: (u64, u64) = (2_000, 8_000);
 const END_MS: u64 = 11_000;

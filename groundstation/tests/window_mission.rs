@@ -1,5 +1,5 @@
 //! The real window against a running mission: Xvfb, the release-built `groundstation` binary on
-//! Mesa's software GL, and a 2-robot lockstep mission (`onboard::mission`) streaming its ground
+//! Mesa's software GL, and a 2-robot lockstep mission (`sil::mission`) streaming its ground
 //! feed over UDP to the app. Screen grabs (`xwd`) are taken every few seconds until both robots'
 //! trajectories are on the map; that screenshot is asserted and kept.
 //!
@@ -15,7 +15,7 @@ use std::net::UdpSocket;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use onboard::mission::{self, MissionOptions, Runner};
+use sil::mission::{self, MissionOptions, Runner};
 
 /// The robots' colours in `groundstation::ui::palette` (robot 1 pink, robot 2 yellow).
 const ROBOT_RGB: [(u8, [u8; 3]); 2] = [(1, [255, 80, 200]), (2, [255, 220, 0])];

@@ -8,6 +8,7 @@ pub mod feedlog;
 pub mod keyfile;
 pub mod kitti;
 pub mod link;
+pub mod replay;
 pub mod sensor;
 pub mod serial;
 pub mod udp;

@@ -93,7 +93,7 @@ impl DisparityPixel {
 /// `vision/vo_delta`: the keyframe stereo odometry's result for one frame.
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
 #[repr(C)]
-#[type_name("rover.VoDelta.v1")]
+#[type_name("rover.VoDelta.v2")]
 pub struct VoDeltaMsg {
     /// Capture time of the frame.
     pub capture_stamp_ns: u64,
@@ -102,6 +102,9 @@ pub struct VoDeltaMsg {
     /// Body pose at capture in the body frame at the keyframe.
     pub t_keyframe_current_body: Pose,
     pub covariance_body: Covariance6,
+    /// The odometry's own chained body pose (in its first keyframe's frame; after a tracking loss
+    /// continued by prediction): the trajectory of a robot without IMU.
+    pub t_odom_body: Pose,
     pub inliers: u32,
     /// [`VoDeltaMsg::HAS_DELTA`], [`VoDeltaMsg::NEW_KEYFRAME`], [`VoDeltaMsg::RESET`].
     pub flags: u32,

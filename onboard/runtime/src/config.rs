@@ -2,14 +2,33 @@
 //! validated completely at start so that a bad value stops the rover on the ground with a message
 //! naming the key, not in the field.
 //!
-//! Every section and key except `robot.id` has a default (see the `Default` impls). Unknown keys
-//! are rejected (a misspelt key would otherwise silently fall back to its default).
+//! Every key but `robot.id` and the sensor source has a default (see the `Default` impls): the
+//! driver needs `driver.kind` with its `replay_path` (a dataset, which brings its own calibration)
+//! or its `[driver.sim]` table (the `sil` harness's simulator, which needs `[camera.calibration]`).
+//! Unknown keys are rejected (a misspelt key would otherwise silently fall back to its default).
+//!
+//! | section | what |
+//! |---|---|
+//! | `[robot]` | id, name, bus id, output folder |
+//! | `[driver]` | sensor source: `replay` (dataset folder, pace, duration) or `sim` (`[driver.sim]`) |
+//! | `[camera]` | frame rate, `[camera.calibration]` of the stereo head (`calibration` module) |
+//! | `[imu]` | gravity at the site, noise densities, initial bias sigmas, gyro scale error |
+//! | `[vision]`, `[filter]` | matcher and odometry; the filter's inputs, latency and updates |
+//! | `[rates]` | sensor rates and the processes' fixed-rate tasks |
+//! | `[mapper]` | submap policy, voxels, depth error limit |
+//! | `[link]` | team link (UDP or serial), ground link, command key |
+//! | `[realtime]`, `[recording]` | SCHED_FIFO, CPU, memory locking; bus recording |
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
+pub mod calibration;
+
+use filter::config::ImuNoise;
 use msgs::ProcessKind;
 use serde::{Deserialize, Serialize};
+
+pub use calibration::CalibrationConfig;
 
 use crate::task::TaskSpec;
 use crate::task::rt::RtRequest;
@@ -25,6 +44,12 @@ pub struct RoverConfig {
     pub driver: DriverConfig,
     #[serde(default)]
     pub camera: CameraConfig,
+    #[serde(default)]
+    pub imu: ImuConfig,
+    #[serde(default)]
+    pub vision: VisionConfig,
+    #[serde(default)]
+    pub filter: FilterSettings,
     #[serde(default)]
     pub rates: RatesConfig,
     #[serde(default)]
@@ -66,78 +91,194 @@ impl RobotConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DriverKind {
-    /// Sensors from the `sim` world.
+    /// Sensors from the software-in-the-loop simulator: provided by the `sil` harness, which runs
+    /// these same processes with its simulated sensors; the firmware alone refuses it.
     Sim,
-    /// Sensors from a recording (`driver.replay_path`).
+    /// Sensors from a recorded dataset (`driver.replay_path`: EuRoC/ASL or KITTI layout).
     Replay,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Scenario {
-    Moon,
-    Mars,
-}
-
-impl Scenario {
-    /// The `sim::scenario::preset` name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Scenario::Moon => "moon",
-            Scenario::Mars => "mars",
-        }
-    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DriverConfig {
     pub kind: DriverKind,
-    pub scenario: Scenario,
-    pub seed: u64,
-    /// Recording to replay; required with `kind = "replay"`.
+    /// The dataset folder; required with `kind = "replay"`.
     pub replay_path: Option<PathBuf>,
-    /// Robots in the team (sim robot ids are `0..robots`).
-    pub robots: u16,
-    pub duration_s: f64,
+    /// Replay pace against the wall clock in the process runner (1 = as recorded, 0.25 = a quarter
+    /// of the recorded pace, so that a slow board drops no frame).
+    pub replay_speed: f64,
+    /// The driver stops after this much sensor time (default: the whole source).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub duration_s: Option<f64>,
+    /// With `kind = "sim"`: the simulated world (scenario, seed, team size, ...). The firmware
+    /// passes it through untouched to whoever provides the simulated sensors, which validates it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sim: Option<toml::Table>,
 }
 
 impl Default for DriverConfig {
     fn default() -> Self {
-        DriverConfig {
-            kind: DriverKind::Sim,
-            scenario: Scenario::Moon,
-            seed: 1,
-            replay_path: None,
-            robots: 2,
-            duration_s: 300.0,
-        }
+        DriverConfig { kind: DriverKind::Replay, replay_path: None, replay_speed: 1.0, duration_s: None, sim: None }
+    }
+}
+
+impl DriverConfig {
+    /// The driver's last stamp (sensor time), if it has one.
+    pub fn end_stamp_ns(&self) -> Option<u64> {
+        self.duration_s.map(|s| (s * 1e9) as u64)
     }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CameraConfig {
-    /// Sensor resolution before downscaling.
-    pub width_px: u32,
-    pub height_px: u32,
-    /// 1, 2 or 4: the images the vision process matches are `width / downscale` wide.
-    pub downscale: u32,
     /// Stereo frame rate; at most [`FPGA_MAX_RATE_HZ`].
     pub rate_hz: f64,
+    /// The stereo head; optional with a replayed dataset, which brings its own.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationConfig>,
 }
 
 impl Default for CameraConfig {
     fn default() -> Self {
-        CameraConfig { width_px: 1024, height_px: 508, downscale: 1, rate_hz: 10.0 }
+        CameraConfig { rate_hz: 10.0, calibration: None }
     }
 }
 
-impl CameraConfig {
-    /// Size of the images on the bus.
-    pub fn image_size_px(&self) -> (u32, u32) {
-        let d = self.downscale.max(1);
-        (self.width_px / d, self.height_px / d)
+/// `[imu]`: the IMU's noise model and the site's gravity, for the filter.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ImuConfig {
+    /// Gravity at the site (Moon 1.62, Mars 3.721, Earth 9.80665 m/s²).
+    pub gravity_mps2: f64,
+    /// Continuous-time noise densities; default: a replayed dataset's `imu0/sensor.yaml`, else
+    /// EuRoC's ADIS16448.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<ImuNoiseConfig>,
+    /// Initial 1σ of the biases (turn-on bias as the datasheet states it); default: the filter's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gyro_bias_sigma_radps: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accel_bias_sigma_mps2: Option<f64>,
+    /// Relative gyro scale and misalignment error (1σ); 0 for an ideal-scale gyro.
+    pub gyro_scale_sigma: f64,
+}
+
+impl Default for ImuConfig {
+    fn default() -> Self {
+        ImuConfig {
+            gravity_mps2: crate::vio::EARTH_GRAVITY_MPS2,
+            noise: None,
+            gyro_bias_sigma_radps: None,
+            accel_bias_sigma_mps2: None,
+            gyro_scale_sigma: crate::vio::EUROC_GYRO_SCALE_SIGMA,
+        }
+    }
+}
+
+/// IMU noise densities (`filter::config::ImuNoise`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuNoiseConfig {
+    /// rad/s/√Hz
+    pub gyro_noise_density: f64,
+    /// rad/s²/√Hz
+    pub gyro_random_walk: f64,
+    /// m/s²/√Hz
+    pub accel_noise_density: f64,
+    /// m/s³/√Hz
+    pub accel_random_walk: f64,
+}
+
+impl ImuNoiseConfig {
+    pub fn noise(&self) -> ImuNoise {
+        ImuNoise {
+            gyro_noise_density: self.gyro_noise_density,
+            gyro_random_walk: self.gyro_random_walk,
+            accel_noise_density: self.accel_noise_density,
+            accel_random_walk: self.accel_random_walk,
+        }
+    }
+
+    pub fn from_noise(noise: &ImuNoise) -> ImuNoiseConfig {
+        ImuNoiseConfig {
+            gyro_noise_density: noise.gyro_noise_density,
+            gyro_random_walk: noise.gyro_random_walk,
+            accel_noise_density: noise.accel_noise_density,
+            accel_random_walk: noise.accel_random_walk,
+        }
+    }
+}
+
+/// `[vision]`: the vision process's matcher and odometry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VisionConfig {
+    /// Depth for the odometry from the SGM map instead of the odometry's sparse matching.
+    pub sgm_depth_for_vo: bool,
+    pub sgm_threads: usize,
+    /// Disparity range of the SGM core (a multiple of 16; the FPGA's is 128 at 1024 px).
+    pub sgm_disparities: u16,
+    /// Drop SGM's small blunder patches before depth.
+    pub despeckle: bool,
+    /// Seed the odometry with the filter's keyframe→current motion.
+    pub vo_prior: bool,
+    /// Longest wait for the filter state of a capture before the odometry runs without a prior.
+    pub prior_wait_ms: f64,
+}
+
+impl Default for VisionConfig {
+    fn default() -> Self {
+        VisionConfig {
+            sgm_depth_for_vo: false,
+            sgm_threads: 1,
+            sgm_disparities: vision::depth_sgm_config().disparities,
+            despeckle: true,
+            vo_prior: true,
+            prior_wait_ms: 50.0,
+        }
+    }
+}
+
+/// Which odometry results become filter updates (`crate::vio::VoUpdates`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VoUpdatesConfig {
+    EveryFrame,
+    Keyframes,
+}
+
+/// `[filter]`: the local reference filter's inputs and timing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FilterSettings {
+    /// Fuse the IMU (the error-state filter); `false`: the stereo odometry's own chain, for a
+    /// dataset without IMU.
+    pub use_imu: bool,
+    pub use_wheel: bool,
+    /// Zero-velocity updates while standing.
+    pub zupt: bool,
+    /// Sensor time from an image's capture to the application of its odometry result (thesis:
+    /// SGM + VO latency).
+    pub vo_latency_ms: f64,
+    pub vo_updates: VoUpdatesConfig,
+    /// Factor on the odometry's delta covariance before fusion (see `crate::vio::VioOptions`).
+    pub vo_covariance_scale: f64,
+    /// IMU data averaged for the at-rest initialization.
+    pub init_window_ms: f64,
+}
+
+impl Default for FilterSettings {
+    fn default() -> Self {
+        FilterSettings {
+            use_imu: true,
+            use_wheel: true,
+            zupt: true,
+            vo_latency_ms: 250.0,
+            vo_updates: VoUpdatesConfig::EveryFrame,
+            vo_covariance_scale: 8.0,
+            init_window_ms: 500.0,
+        }
     }
 }
 
@@ -215,12 +356,23 @@ pub struct MapperConfig {
     pub point_voxel_m: f64,
     /// Occupancy octree voxel (thesis: 10 cm).
     pub octree_voxel_m: f64,
+    /// Depth points whose stereo depth error exceeds this are not mapped (default: the
+    /// integrator's, set for the LRU head at full resolution; at `1/k` of the resolution the same
+    /// disparity error is `k` times more depth error, so `k` times the limit keeps the range).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_depth_error_m: Option<f64>,
 }
 
 impl Default for MapperConfig {
     fn default() -> Self {
         // `mapper::submap::SubmapPolicy::default()`: the LRU multi-robot experiments.
-        MapperConfig { submap_max_distance_m: 7.0, max_position_sigma_m: 0.2, point_voxel_m: 0.05, octree_voxel_m: 0.1 }
+        MapperConfig {
+            submap_max_distance_m: 7.0,
+            max_position_sigma_m: 0.2,
+            point_voxel_m: 0.05,
+            octree_voxel_m: 0.1,
+            max_depth_error_m: None,
+        }
     }
 }
 
@@ -365,6 +517,9 @@ impl Default for RoverConfig {
             robot: RobotConfig { id: 0, name: String::new(), bus_id: None, output_dir: None },
             driver: DriverConfig::default(),
             camera: CameraConfig::default(),
+            imu: ImuConfig::default(),
+            vision: VisionConfig::default(),
+            filter: FilterSettings::default(),
             rates: RatesConfig::default(),
             mapper: MapperConfig::default(),
             link: LinkConfig::default(),
@@ -395,33 +550,105 @@ impl RoverConfig {
     /// Checks ranges and consistency between values; the first problem is returned.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let d = &self.driver;
-        check(d.robots >= 1 && d.robots <= 16, "driver.robots", || format!("{} robots: expected 1..=16", d.robots))?;
-        check(d.duration_s.is_finite() && d.duration_s > 0.0 && d.duration_s <= 86_400.0, "driver.duration_s", || {
-            format!("{} s: expected more than 0 and at most a day", d.duration_s)
-        })?;
+        if let Some(duration_s) = d.duration_s {
+            check(duration_s.is_finite() && duration_s > 0.0 && duration_s <= 86_400.0, "driver.duration_s", || {
+                format!("{duration_s} s: expected more than 0 and at most a day")
+            })?;
+        }
+        check(
+            d.replay_speed.is_finite() && d.replay_speed > 0.0 && d.replay_speed <= 100.0,
+            "driver.replay_speed",
+            || format!("{}: expected more than 0, at most 100", d.replay_speed),
+        )?;
         match d.kind {
-            DriverKind::Sim => check(self.robot.id < d.robots, "robot.id", || {
-                format!("{} is not a robot of the simulated team (ids 0..{})", self.robot.id, d.robots)
+            DriverKind::Sim => check(d.sim.is_some(), "driver.sim", || {
+                "required with driver.kind = \"sim\" (the simulated world's settings)".into()
             })?,
-            DriverKind::Replay => check(d.replay_path.is_some(), "driver.replay_path", || {
-                "required with driver.kind = \"replay\"".into()
-            })?,
+            DriverKind::Replay => {
+                check(d.replay_path.is_some(), "driver.replay_path", || {
+                    "required with driver.kind = \"replay\"".into()
+                })?;
+                check(d.sim.is_none(), "driver.sim", || "only with driver.kind = \"sim\"".into())?;
+            }
         }
 
         let c = &self.camera;
-        check(matches!(c.downscale, 1 | 2 | 4), "camera.downscale", || format!("{}: expected 1, 2 or 4", c.downscale))?;
-        for (key, px) in [("camera.width_px", c.width_px), ("camera.height_px", c.height_px)] {
-            check((16..=8192).contains(&px), key, || format!("{px} px: expected 16..=8192"))?;
-            check(px.is_multiple_of(c.downscale), key, || {
-                format!("{px} px is not divisible by camera.downscale {}", c.downscale)
-            })?;
-        }
         check(c.rate_hz.is_finite() && c.rate_hz > 0.0, "camera.rate_hz", || {
             format!("{} Hz: must be positive", c.rate_hz)
         })?;
         check(c.rate_hz <= FPGA_MAX_RATE_HZ + 1e-9, "camera.rate_hz", || {
             format!("{} Hz is above the FPGA's maximum of {FPGA_MAX_RATE_HZ} Hz", c.rate_hz)
         })?;
+        match &c.calibration {
+            Some(calibration) => {
+                calibration
+                    .to_calibration()
+                    .map_err(|problem| ConfigError::Invalid { key: "camera.calibration".into(), problem })?;
+            }
+            None => check(d.kind == DriverKind::Replay, "camera.calibration", || {
+                "required unless a replayed dataset brings its own".into()
+            })?,
+        }
+
+        let i = &self.imu;
+        check(
+            i.gravity_mps2.is_finite() && i.gravity_mps2 > 0.0 && i.gravity_mps2 <= 30.0,
+            "imu.gravity_mps2",
+            || format!("{} m/s²: expected more than 0, at most 30", i.gravity_mps2),
+        )?;
+        if let Some(n) = &i.noise {
+            for (key, v) in [
+                ("imu.noise.gyro_noise_density", n.gyro_noise_density),
+                ("imu.noise.gyro_random_walk", n.gyro_random_walk),
+                ("imu.noise.accel_noise_density", n.accel_noise_density),
+                ("imu.noise.accel_random_walk", n.accel_random_walk),
+            ] {
+                check(v.is_finite() && v > 0.0, key, || format!("{v}: must be positive"))?;
+            }
+        }
+        for (key, v) in [
+            ("imu.gyro_bias_sigma_radps", i.gyro_bias_sigma_radps),
+            ("imu.accel_bias_sigma_mps2", i.accel_bias_sigma_mps2),
+        ] {
+            if let Some(v) = v {
+                check(v.is_finite() && v > 0.0, key, || format!("{v}: must be positive"))?;
+            }
+        }
+        check(
+            i.gyro_scale_sigma.is_finite() && (0.0..=0.2).contains(&i.gyro_scale_sigma),
+            "imu.gyro_scale_sigma",
+            || format!("{}: expected 0..=0.2", i.gyro_scale_sigma),
+        )?;
+
+        let v = &self.vision;
+        check((1..=64).contains(&v.sgm_threads), "vision.sgm_threads", || {
+            format!("{}: expected 1..=64", v.sgm_threads)
+        })?;
+        check(
+            (16..=256).contains(&v.sgm_disparities) && v.sgm_disparities.is_multiple_of(16),
+            "vision.sgm_disparities",
+            || format!("{}: expected a multiple of 16 in 16..=256", v.sgm_disparities),
+        )?;
+        check(
+            v.prior_wait_ms.is_finite() && (0.0..=10_000.0).contains(&v.prior_wait_ms),
+            "vision.prior_wait_ms",
+            || format!("{} ms: expected 0..=10000", v.prior_wait_ms),
+        )?;
+
+        let f = &self.filter;
+        check(
+            f.vo_latency_ms.is_finite() && (0.0..=10_000.0).contains(&f.vo_latency_ms),
+            "filter.vo_latency_ms",
+            || format!("{} ms: expected 0..=10000", f.vo_latency_ms),
+        )?;
+        check(f.vo_covariance_scale.is_finite() && f.vo_covariance_scale > 0.0, "filter.vo_covariance_scale", || {
+            format!("{}: must be positive", f.vo_covariance_scale)
+        })?;
+        check(
+            f.init_window_ms.is_finite() && (0.0..=60_000.0).contains(&f.init_window_ms),
+            "filter.init_window_ms",
+            || format!("{} ms: expected 0..=60000", f.init_window_ms),
+        )?;
 
         let r = &self.rates;
         for (key, hz) in [("rates.imu_hz", r.imu_hz), ("rates.wheel_hz", r.wheel_hz)] {
@@ -435,17 +662,6 @@ impl RoverConfig {
         check(r.vision.hz >= c.rate_hz - 1e-9, "rates.vision.hz", || {
             format!("{} Hz is below camera.rate_hz {} Hz: vision would fall behind the camera", r.vision.hz, c.rate_hz)
         })?;
-        if d.kind == DriverKind::Sim {
-            // The simulator fires every sensor on the IMU's sample grid.
-            for (key, hz) in [("camera.rate_hz", c.rate_hz), ("rates.wheel_hz", r.wheel_hz)] {
-                check(is_integer_ratio(r.imu_hz, hz), key, || {
-                    format!(
-                        "{hz} Hz does not divide rates.imu_hz {} Hz (the simulator needs whole IMU periods)",
-                        r.imu_hz
-                    )
-                })?;
-            }
-        }
 
         let m = &self.mapper;
         let in_range = |v: f64, lo: f64, hi: f64| v.is_finite() && v >= lo && v <= hi;
@@ -457,6 +673,9 @@ impl RoverConfig {
         })?;
         for (key, v) in [("mapper.point_voxel_m", m.point_voxel_m), ("mapper.octree_voxel_m", m.octree_voxel_m)] {
             check(in_range(v, 0.005, 2.0), key, || format!("{v} m: expected 0.005..=2"))?;
+        }
+        if let Some(v) = m.max_depth_error_m {
+            check(in_range(v, 0.001, 10.0), "mapper.max_depth_error_m", || format!("{v} m: expected 0.001..=10"))?;
         }
 
         self.validate_link()?;
@@ -564,11 +783,6 @@ fn validate_task_rate(name: &str, task: &TaskRate) -> Result<(), ConfigError> {
         })?;
     }
     Ok(())
-}
-
-fn is_integer_ratio(fast_hz: f64, slow_hz: f64) -> bool {
-    let ratio = fast_hz / slow_hz;
-    ratio >= 1.0 - 1e-9 && (ratio - ratio.round()).abs() <= 1e-6 * ratio
 }
 
 fn check(ok: bool, key: &str, problem: impl FnOnce() -> String) -> Result<(), ConfigError> {

@@ -1,5 +1,8 @@
-//! The lockstep runner's in-process bus: nodes of one robot exchange the same [`Message`]s as
-//! over iceoryx2, delivered in publish order on simulated time, deterministically.
+//! The lockstep runner: one robot's nodes ([`RobotStack`], built by [`crate::stack`] as the
+//! process runner builds them) on simulated time, exchanging the same [`Message`]s as over
+//! iceoryx2 through an in-process bus ([`LocalBus`]), delivered in publish order,
+//! deterministically. `onboard vio` runs one stack on a dataset; the `sil` harness runs one per
+//! robot of a simulated team and moves the radio packets between their comms nodes.
 //!
 //! A published message is copied once into the robot's queue ([`OwnedMessage`], the recording's
 //! owned form; image buffers
@@ -9,12 +12,22 @@
 //! delivery is breadth-first, as a bus with one message in flight at a time.
 
 use std::collections::VecDeque;
+use std::path::PathBuf;
 use std::time::Instant;
 
+use hal::sensor::SensorSource;
 use msgs::DisparityPixel;
 
+use crate::config::RoverConfig;
+use crate::nodes::comms::CommsNode;
+use crate::nodes::driver::{DriverNode, DriverOptions};
+use crate::nodes::filter::FilterNode;
+use crate::nodes::mapper::MapperNode;
+use crate::nodes::vision::VisionNode;
 use crate::nodes::{Message, Node, NodeError, Outbox, Topic};
 pub use crate::record::OwnedMessage;
+use crate::sensors::SensorSetup;
+use crate::stack;
 
 /// Recycled payload buffers.
 #[derive(Debug, Default)]
@@ -166,5 +179,107 @@ impl LocalBus {
             self.deliver(nodes, times)?;
         }
         Ok(())
+    }
+}
+
+/// The lockstep step: one IMU period at 200 Hz.
+pub const STEP_NS: u64 = 5_000_000;
+
+/// The node names in [`RobotStack`] order (the index of [`NodeTimes::seconds`]).
+pub const NODE_NAMES: [&str; 5] = ["driver", "vision", "filter", "mapper", "comms"];
+
+/// Why a stack could not be built or run.
+#[derive(Debug, thiserror::Error)]
+pub enum StackError {
+    #[error("{0}")]
+    Node(#[from] NodeError),
+    #[error("set-up: {0}")]
+    Setup(String),
+}
+
+/// One robot's nodes on the lockstep runner (see the module documentation).
+#[derive(Debug)]
+pub struct RobotStack {
+    pub driver: DriverNode,
+    pub vision: VisionNode,
+    pub filter: FilterNode,
+    pub mapper: MapperNode,
+    /// The comms node (absent for a robot alone, e.g. `onboard vio`).
+    pub comms: Option<CommsNode>,
+    pub bus: LocalBus,
+    pub times: NodeTimes,
+    mapper_period_ns: u64,
+    comms_period_ns: u64,
+}
+
+impl RobotStack {
+    /// The stack of the robot configured in `config`, its driver reading `source`; the mapper
+    /// keeps its state in `state_dir` (none: nothing persisted).
+    pub fn new(
+        config: &RoverConfig,
+        setup: &SensorSetup,
+        source: Box<dyn SensorSource + Send>,
+        comms: Option<CommsNode>,
+        state_dir: Option<PathBuf>,
+    ) -> Result<RobotStack, StackError> {
+        let driver = DriverNode::new(source, DriverOptions { end_stamp_ns: config.driver.end_stamp_ns() });
+        let vision = stack::vision_node(config, setup)?;
+        let filter = stack::filter_node(config, setup);
+        let mut mapper_config = stack::mapper_config(config, *vision.rectified_calibration());
+        mapper_config.state_dir = state_dir;
+        let mapper = MapperNode::new(mapper_config).map_err(|e| StackError::Setup(format!("mapper: {e}")))?;
+        Ok(RobotStack {
+            driver,
+            vision,
+            filter,
+            mapper,
+            comms,
+            bus: LocalBus::new(),
+            times: NodeTimes::default(),
+            mapper_period_ns: config.rates.mapper.period_ns().max(STEP_NS),
+            comms_period_ns: config.rates.comms.period_ns().max(STEP_NS),
+        })
+    }
+
+    fn nodes(&mut self) -> (Vec<&mut dyn Node>, &mut LocalBus, &mut NodeTimes) {
+        let mut nodes: Vec<&mut dyn Node> =
+            vec![&mut self.driver, &mut self.vision, &mut self.filter, &mut self.mapper];
+        if let Some(comms) = self.comms.as_mut() {
+            nodes.push(comms);
+        }
+        (nodes, &mut self.bus, &mut self.times)
+    }
+
+    /// One step at sensor time `now_ns` (a multiple of [`STEP_NS`]): the driver publishes what is
+    /// due, vision and filter tick every step (their time-based work: late-prior waits), the
+    /// mapper and comms at their configured rates; everything published is delivered.
+    pub fn step(&mut self, now_ns: u64) -> Result<(), NodeError> {
+        let due = [
+            true,
+            true,
+            true,
+            now_ns.is_multiple_of(self.mapper_period_ns),
+            now_ns.is_multiple_of(self.comms_period_ns),
+        ];
+        let (mut nodes, bus, times) = self.nodes();
+        bus.tick(now_ns, &mut nodes, &due, times)
+    }
+
+    /// Delivers what is queued (e.g. after the runner inserted messages itself).
+    pub fn deliver(&mut self) -> Result<(), NodeError> {
+        let (mut nodes, bus, times) = self.nodes();
+        bus.deliver(&mut nodes, times)
+    }
+
+    /// The end of the data at sensor time `end_ns`: the pair still waiting for its prior runs,
+    /// the VO results still in flight are applied to the filter (its summary counts them; the
+    /// state after them is not published, as a process stopped at that moment would not), and
+    /// the mapper's last release integrates what arrived.
+    pub fn finish(&mut self, end_ns: u64) -> Result<(), NodeError> {
+        self.vision.flush(&mut self.bus)?;
+        self.filter.flush();
+        let (mut nodes, bus, times) = self.nodes();
+        bus.deliver(&mut nodes, times)?;
+        bus.tick(end_ns, &mut nodes, &[false, false, false, true, false], times)
     }
 }

@@ -160,6 +160,7 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         keyframe_stamp_ns: 0,
         t_keyframe_current_body: pose(),
         covariance_body: [0.0; 36],
+        t_odom_body: Pose::IDENTITY,
         inliers: 40,
         flags: VoDeltaMsg::HAS_DELTA,
     };
@@ -347,6 +348,7 @@ fn imu_burst_during_a_one_second_filter_stall_loses_nothing() {
             keyframe_stamp_ns: 0,
             t_keyframe_current_body: pose(),
             covariance_body: [0.0; 36],
+            t_odom_body: Pose::IDENTITY,
             inliers: 10,
             flags: VoDeltaMsg::HAS_DELTA,
         };

@@ -58,6 +58,7 @@ fn one_of_each() -> Vec<OwnedMessage> {
             keyframe_stamp_ns: 2,
             t_keyframe_current_body: pose(1.5),
             covariance_body: cov(0.1),
+            t_odom_body: Pose::IDENTITY,
             inliers: 123,
             flags: VoDeltaMsg::HAS_DELTA | VoDeltaMsg::NEW_KEYFRAME,
         }),

@@ -13,8 +13,7 @@ use vision::features::{FeatureConfig, FeatureDetector};
 use vision::klt::{KltConfig, KltTracker};
 use vision::pyramid::Pyramid;
 
-const KITTI_LEFT: &str =
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight/image_l");
+const KITTI_LEFT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight/image_l");
 const WIDTH: usize = 1024;
 const HEIGHT: usize = 508;
 /// Pyramid levels of `VoConfig::default()`.

@@ -1,6 +1,6 @@
 //! `onboard node <driver|vision|filter|mapper|comms> --config rover.toml`
 //!
-//! One on-board process of the robot (see [`onboard::process::node_main`]); the supervisor
+//! One on-board process of the robot (see [`crate::process::node_main`]); the supervisor
 //! (`onboard run`) starts these. Runs until SIGTERM or SIGINT, then writes its files and exits 0.
 //! Exit codes: 0 stopped on request, 1 runtime error (the supervisor restarts it), 2 usage error.
 
@@ -8,7 +8,8 @@ use std::ffi::OsString;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use onboard::process::{NodeKind, node_main};
+use crate::process::{NodeKind, node_main};
+use crate::sensors::SourceProvider;
 
 const USAGE: &str = "usage: onboard node <driver|vision|filter|mapper|comms> --config FILE
 
@@ -38,9 +39,10 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(NodeKind, PathBuf)>, String
     Ok(Some((kind, config)))
 }
 
-pub fn main(args: Vec<OsString>) -> ExitCode {
-    match super::parse_and_run("node", USAGE, args, parse_args, |(kind, config)| {
-        node_main(*kind, config).map_err(|e| e.to_string())
+/// `program node …` with the driver's sensors from `sources`.
+pub fn main(program: &str, args: Vec<OsString>, sources: &dyn SourceProvider) -> ExitCode {
+    match super::parse_and_run(program, "node", USAGE, args, parse_args, |(kind, config)| {
+        node_main(*kind, config, sources).map_err(|e| e.to_string())
     }) {
         Ok(_) => ExitCode::SUCCESS,
         Err(code) => code,

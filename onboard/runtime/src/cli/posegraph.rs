@@ -128,7 +128,7 @@ fn run(options: &Options) -> Result<Report, String> {
 }
 
 pub fn main(args: Vec<OsString>) -> ExitCode {
-    let (options, report) = match super::parse_and_run("posegraph", USAGE, args, parse_args, run) {
+    let (options, report) = match super::parse_and_run("onboard", "posegraph", USAGE, args, parse_args, run) {
         Ok(done) => done,
         Err(code) => return code,
     };

@@ -1,6 +1,6 @@
 //! `onboard run --config rover.toml [--json]`
 //!
-//! The rover's supervisor (see [`onboard::process::supervise`]): starts the driver, vision,
+//! The rover's supervisor (see [`crate::process::supervise`]): starts the driver, vision,
 //! filter, mapper and comms processes, restarts crashed ones with back-off, and on SIGTERM or
 //! SIGINT stops them and prints what happened (restarts per process).
 //! Exit codes: 0 stopped on request, 1 runtime error, 2 usage error.
@@ -9,7 +9,7 @@ use std::ffi::OsString;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use onboard::process::supervise;
+use crate::process::supervise;
 
 const USAGE: &str = "usage: onboard run --config FILE [--json]
 
@@ -35,8 +35,10 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(PathBuf, bool)>, String> {
     Ok(Some((config.ok_or("--config FILE is required")?, json)))
 }
 
-pub fn main(args: Vec<OsString>) -> ExitCode {
-    match super::parse_and_run("run", USAGE, args, parse_args, |(config, _)| {
+/// `program run …`: the supervisor starts the processes as `program node …` (the executable it
+/// runs in).
+pub fn main(program: &str, args: Vec<OsString>) -> ExitCode {
+    match super::parse_and_run(program, "run", USAGE, args, parse_args, |(config, _)| {
         supervise(config).map_err(|e| e.to_string())
     }) {
         Ok(((_, json), report)) => {

@@ -52,7 +52,6 @@
 
 mod driver;
 mod ground;
-mod ground_end;
 pub mod replay;
 mod resend;
 
@@ -66,7 +65,6 @@ use protocol::message::{CommandAck, CommandKind, CommandOutcome, Heartbeat, Mode
 use protocol::{AnyMessage, AuthKey, Delivery, MAX_PACKET_BYTES, MessageKey, NodeId, Priority, ReplayGuard, RobotId};
 
 pub use driver::{DriverStats, LinkDriver, step_duplex};
-pub use ground_end::{GroundEnd, GroundEndError, GroundEndStats};
 pub use replay::ReplayStateError;
 pub use resend::RESEND_STORE_BYTES;
 

@@ -1,21 +1,17 @@
-//! The sensor driver as a bus node: one simulated robot's IMU, wheel odometry and stereo pairs
-//! ([`sim::driver::SimSensorSource`]) published on sensor time.
+//! The sensor driver as a bus node: one robot's IMU, wheel odometry and stereo pairs from a
+//! [`SensorSource`] (a dataset replay, the simulator in the `sil` harness, later the devices),
+//! published on sensor time.
+//!
+//! Sensor time starts at the source's first event: every stamp is published relative to it
+//! ([`DriverNode::time_offset_ns`] is the source's stamp of sensor time 0), so a replayed dataset
+//! recorded at an epoch of 1.4·10⁹ s runs on the same clock as a mission that starts at 0.
 //!
 //! [`DriverNode::on_tick`] publishes every event stamped at or before `now_ns`, in the source's
-//! order (at equal stamps IMU, wheel odometry, stereo). The source has no look-ahead, so the first
-//! event past `now_ns` is read and held for the next tick; on the simulator's grid that event is
-//! always an IMU sample (every tick starts with one), so no image is rendered before it is due.
-//!
-//! The driver keeps the ground truth the mission report needs: the source's state at any stamp
-//! and a log of `t_world_body` at every camera capture (the TUM ground truth).
-
-use std::sync::Arc;
+//! order (at equal stamps the source's own order). The source has no look-ahead, so the first
+//! event past `now_ns` is read and held for the next tick.
 
 use hal::sensor::{ImuSample, SensorEvent, SensorSource, StereoCalibration, StereoFrame, WheelOdomSample};
 use msgs::{ImuMsg, StereoHeader, WheelOdomMsg};
-use nalgebra::Isometry3;
-use sim::driver::{GroundTruthSample, SimSensorSource};
-use sim::world::World;
 
 use super::{Message, Node, NodeError, Outbox, Topic};
 
@@ -24,7 +20,7 @@ const NAME: &str = "driver";
 /// How the driver runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct DriverOptions {
-    /// Events after this stamp are not published (the driver is finished there).
+    /// Events after this sensor time are not published (the driver is finished there).
     pub end_stamp_ns: Option<u64>,
 }
 
@@ -34,45 +30,58 @@ pub struct DriverCounts {
     pub imu: u64,
     pub wheel: u64,
     pub stereo: u64,
+    /// Events whose stamp went backwards (not published).
+    pub out_of_order: u64,
 }
 
 /// One robot's sensors on the bus (see the module documentation).
-#[derive(Debug)]
 pub struct DriverNode {
-    source: SimSensorSource,
+    source: Box<dyn SensorSource + Send>,
     options: DriverOptions,
     calibration: Option<StereoCalibration>,
-    /// Render target of the source; holds the pair of a held stereo event.
+    /// Target of the source; holds the pair of a held stereo event.
     frame: StereoFrame,
     /// The stereo payload: left rows, then right rows (capacity kept between frames).
     stereo_bytes: Vec<u8>,
     /// An event read from the source but not yet due.
     held: Option<SensorEvent>,
+    /// The source's stamp of sensor time 0 (its first event's), once known.
+    time_offset_ns: Option<u64>,
+    last_stamp_ns: u64,
     finished: bool,
     imu_sequence: u64,
     wheel_sequence: u64,
     counts: DriverCounts,
-    truth_log: Vec<(u64, Isometry3<f64>)>,
+}
+
+impl std::fmt::Debug for DriverNode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DriverNode")
+            .field("options", &self.options)
+            .field("time_offset_ns", &self.time_offset_ns)
+            .field("finished", &self.finished)
+            .field("counts", &self.counts)
+            .finish_non_exhaustive()
+    }
 }
 
 impl DriverNode {
-    /// The driver of robot `robot` of `world`.
-    pub fn new(world: Arc<World>, robot: usize, options: DriverOptions) -> Result<Self, NodeError> {
-        let source = SimSensorSource::new(world, robot).map_err(|e| failed(e.to_string()))?;
+    pub fn new(source: Box<dyn SensorSource + Send>, options: DriverOptions) -> DriverNode {
         let calibration = source.stereo_calibration();
-        Ok(DriverNode {
+        DriverNode {
             source,
             options,
             calibration,
             frame: StereoFrame::default(),
             stereo_bytes: Vec::new(),
             held: None,
+            time_offset_ns: None,
+            last_stamp_ns: 0,
             finished: false,
             imu_sequence: 0,
             wheel_sequence: 0,
             counts: DriverCounts::default(),
-            truth_log: Vec::new(),
-        })
+        }
     }
 
     /// Calibration of the stereo head (raw or rectified, as the source delivers its pairs).
@@ -80,14 +89,9 @@ impl DriverNode {
         self.calibration
     }
 
-    /// Ground truth of the robot at `stamp_ns` (biases as of the last IMU sample read).
-    pub fn ground_truth(&self, stamp_ns: u64) -> Option<GroundTruthSample> {
-        self.source.ground_truth(stamp_ns)
-    }
-
-    /// `t_world_body` at every published camera capture, in order.
-    pub fn truth_log(&self) -> &[(u64, Isometry3<f64>)] {
-        &self.truth_log
+    /// The source's stamp of sensor time 0; `None` before the first event was read.
+    pub fn time_offset_ns(&self) -> Option<u64> {
+        self.time_offset_ns
     }
 
     pub fn counts(&self) -> DriverCounts {
@@ -100,16 +104,14 @@ impl DriverNode {
         self.finished && self.held.is_none()
     }
 
-    pub fn robot(&self) -> usize {
-        self.source.robot()
-    }
-
+    /// An event's stamp in sensor time.
     fn event_stamp_ns(&self, event: &SensorEvent) -> u64 {
-        match event {
+        let source_ns = match event {
             SensorEvent::Imu(s) => s.stamp_ns,
             SensorEvent::WheelOdom(s) => s.stamp_ns,
             SensorEvent::Stereo => self.frame.stamp_ns,
-        }
+        };
+        source_ns.saturating_sub(self.time_offset_ns.unwrap_or(0))
     }
 
     fn next_event(&mut self) -> Result<Option<SensorEvent>, NodeError> {
@@ -119,38 +121,52 @@ impl DriverNode {
         if self.finished {
             return Ok(None);
         }
-        let event = self.source.next_event(&mut self.frame).map_err(|e| failed(e.to_string()))?;
-        let event = event.filter(|e| self.options.end_stamp_ns.is_none_or(|end| self.event_stamp_ns(e) <= end));
-        if event.is_none() {
+        let Some(event) = self.source.next_event(&mut self.frame).map_err(|e| failed(e.to_string()))? else {
             self.finished = true;
+            return Ok(None);
+        };
+        if self.time_offset_ns.is_none() {
+            let first_ns = match &event {
+                SensorEvent::Imu(s) => s.stamp_ns,
+                SensorEvent::WheelOdom(s) => s.stamp_ns,
+                SensorEvent::Stereo => self.frame.stamp_ns,
+            };
+            self.time_offset_ns = Some(first_ns);
         }
-        Ok(event)
+        if self.options.end_stamp_ns.is_some_and(|end| self.event_stamp_ns(&event) > end) {
+            self.finished = true;
+            return Ok(None);
+        }
+        Ok(Some(event))
     }
 
     fn publish_event(&mut self, event: &SensorEvent, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        let stamp_ns = self.event_stamp_ns(event);
+        if stamp_ns < self.last_stamp_ns {
+            self.counts.out_of_order += 1;
+            return Ok(());
+        }
+        self.last_stamp_ns = stamp_ns;
         match event {
             SensorEvent::Imu(sample) => {
-                let message = imu_message(sample, self.imu_sequence);
+                let message = imu_message(&ImuSample { stamp_ns, ..*sample }, self.imu_sequence);
                 self.imu_sequence += 1;
                 self.counts.imu += 1;
                 out.publish(Message::Imu(&message))
             }
             SensorEvent::WheelOdom(sample) => {
-                let message = wheel_message(sample, self.wheel_sequence);
+                let message = wheel_message(&WheelOdomSample { stamp_ns, ..*sample }, self.wheel_sequence);
                 self.wheel_sequence += 1;
                 self.counts.wheel += 1;
                 out.publish(Message::WheelOdom(&message))
             }
             SensorEvent::Stereo => {
                 let frame = &self.frame;
-                if let Some(truth) = self.source.ground_truth(frame.stamp_ns) {
-                    self.truth_log.push((frame.stamp_ns, truth.state.t_world_body));
-                }
                 self.stereo_bytes.clear();
                 self.stereo_bytes.extend_from_slice(&frame.left);
                 self.stereo_bytes.extend_from_slice(&frame.right);
                 let header = StereoHeader {
-                    stamp_ns: frame.stamp_ns,
+                    stamp_ns,
                     sequence: frame.sequence,
                     pan_rad: frame.pan_rad,
                     tilt_rad: frame.tilt_rad,

@@ -29,6 +29,7 @@
 //! results waiting for their due time and the standstill detector's window.
 
 pub mod checkpoint;
+pub mod odometry_chain;
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
@@ -61,6 +62,9 @@ pub const CHECKPOINT_PERIOD_NS: u64 = 250_000_000;
 /// The filter node's configuration (the filter part of [`VioOptions`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct FilterNodeOptions {
+    /// Fuse the IMU; without, the node publishes the stereo odometry's own chain
+    /// ([`odometry_chain`]).
+    pub use_imu: bool,
     pub filter: FilterConfig,
     pub use_wheel: bool,
     pub zupt: bool,
@@ -77,6 +81,7 @@ pub struct FilterNodeOptions {
 impl FilterNodeOptions {
     pub fn from_vio(options: &VioOptions) -> Self {
         FilterNodeOptions {
+            use_imu: options.use_imu,
             filter: options.filter.clone(),
             use_wheel: options.use_wheel,
             zupt: options.zupt,
@@ -157,6 +162,10 @@ struct LastVo {
 pub struct FilterNode {
     options: FilterNodeOptions,
     filter: Filter,
+    /// Without IMU: the odometry's chain.
+    chain: odometry_chain::OdometryChain,
+    /// The gyro bias the at-rest initialization levelled.
+    initial_gyro_bias_radps: Option<Vector3<f64>>,
     init_accel_sum: Vector3<f64>,
     init_gyro_sum: Vector3<f64>,
     init_count: u64,
@@ -182,6 +191,8 @@ impl FilterNode {
     pub fn new(options: FilterNodeOptions) -> Self {
         FilterNode {
             filter: Filter::new(options.filter.clone()),
+            chain: odometry_chain::OdometryChain::new(),
+            initial_gyro_bias_radps: None,
             options,
             init_accel_sum: Vector3::zeros(),
             init_gyro_sum: Vector3::zeros(),
@@ -296,6 +307,36 @@ impl FilterNode {
         &self.filter
     }
 
+    /// Starts the filter from a known pose and velocity instead of at rest (a test with ground
+    /// truth, or a robot that starts moving); the pose becomes the first frame's origin.
+    pub fn initialize_with_pose(
+        &mut self,
+        stamp_ns: u64,
+        t_local_body: &Isometry3<f64>,
+        v_local_mps: &Vector3<f64>,
+    ) -> Result<(), filter::FilterError> {
+        self.filter.initialize_with_pose(stamp_ns, t_local_body, v_local_mps)?;
+        self.summary.initialized_ns = Some(stamp_ns);
+        self.last_imu_ns = Some(stamp_ns);
+        self.initial_gyro_bias_radps = self.filter.state().map(|s| s.gyro_bias_radps);
+        Ok(())
+    }
+
+    /// The gyro bias the at-rest initialization levelled (`None` before it, or without IMU).
+    pub fn initial_gyro_bias_radps(&self) -> Option<Vector3<f64>> {
+        self.initial_gyro_bias_radps
+    }
+
+    /// The current local frame's id.
+    pub fn frame_id(&self) -> u32 {
+        if self.options.use_imu { self.filter.frame_id() } else { self.chain.frame_id() }
+    }
+
+    /// Checkpoints go to `path` from now on (see the module docs).
+    pub fn set_checkpoint_path(&mut self, path: PathBuf) {
+        self.options.checkpoint_path = Some(path);
+    }
+
     pub fn summary(&self) -> FilterNodeSummary {
         FilterNodeSummary { filter_health: Some(*self.filter.health()), ..self.summary }
     }
@@ -303,6 +344,9 @@ impl FilterNode {
     /// Applies the VO results still waiting (the data ended before their due time), as the
     /// pipeline's `finish`. Returns the state message after them, if the filter runs.
     pub fn flush(&mut self) -> Option<FilterStateMsg> {
+        if !self.options.use_imu {
+            return self.chain.latest().map(|s| self.chain_message(s));
+        }
         if !self.filter.is_initialized() {
             return None;
         }
@@ -382,6 +426,7 @@ impl FilterNode {
             Ok(()) => {
                 self.summary.initialized_ns = Some(sample.stamp_ns);
                 self.last_imu_ns = Some(sample.stamp_ns);
+                self.initial_gyro_bias_radps = self.filter.state().map(|s| s.gyro_bias_radps);
             }
             Err(_) => self.summary.filter_errors += 1,
         }
@@ -612,6 +657,84 @@ impl FilterNode {
     }
 }
 
+/// Without IMU ([`FilterNodeOptions::use_imu`] off): the odometry's chain.
+impl FilterNode {
+    fn on_message_without_imu(&mut self, message: Message<'_>, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        match message {
+            Message::VoDelta(vo) => {
+                let Some(input) = chain_input(vo) else {
+                    self.summary.bad_messages += 1;
+                    return Ok(());
+                };
+                self.summary.vo_received += 1;
+                self.summary.initialized_ns.get_or_insert(vo.capture_stamp_ns);
+                if vo.flags & VoDeltaMsg::HAS_DELTA != 0 {
+                    self.summary.vo_updates_applied += 1;
+                }
+                let state = self.chain.push(&input);
+                out.publish(Message::FilterState(&self.chain_message(&state)))
+            }
+            Message::FrameSwitchRequest(request) => {
+                if request.frame_id != self.chain.frame_id() {
+                    self.summary.switch_requests_ignored += 1;
+                    return Ok(());
+                }
+                let Some(switch) = self.chain.switch_frame() else {
+                    self.summary.switch_requests_ignored += 1;
+                    return Ok(());
+                };
+                self.summary.frame_switches += 1;
+                let message = FrameSwitchMsg {
+                    stamp_ns: switch.stamp_ns,
+                    t_old_new: Pose::from_isometry(&switch.t_old_new),
+                    covariance: msgs::covariance_to_array(&switch.covariance),
+                    old_frame_id: switch.old_frame_id,
+                    new_frame_id: switch.new_frame_id,
+                };
+                out.publish(Message::FrameSwitch(&message))
+            }
+            Message::Imu(_) => {
+                self.summary.imu_received += 1;
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    fn chain_message(&self, state: &odometry_chain::ChainState) -> FilterStateMsg {
+        FilterStateMsg {
+            stamp_ns: state.stamp_ns,
+            t_local_body: Pose::from_isometry(&state.t_local_body),
+            v_local_mps: [0.0; 3],
+            accel_bias_mps2: [0.0; 3],
+            gyro_bias_radps: [0.0; 3],
+            pose_covariance: msgs::covariance_to_array(&state.covariance),
+            imu_received: self.summary.imu_received,
+            imu_lost: 0,
+            frame_id: state.frame_id,
+            status: FilterStateMsg::RUNNING,
+        }
+    }
+}
+
+/// A VO message in the chain's terms; `None` for non-finite values.
+fn chain_input(vo: &VoDeltaMsg) -> Option<odometry_chain::OdometryInput> {
+    let t_odom_body = super::vision::exact_isometry(&vo.t_odom_body)?;
+    let delta = if vo.flags & VoDeltaMsg::HAS_DELTA != 0 {
+        let d = super::vision::exact_isometry(&vo.t_keyframe_current_body)?;
+        let covariance = msgs::covariance_from_array(&vo.covariance_body)?;
+        Some((vo.keyframe_stamp_ns, d, covariance))
+    } else {
+        None
+    };
+    Some(odometry_chain::OdometryInput {
+        capture_ns: vo.capture_stamp_ns,
+        t_odom_body,
+        delta,
+        new_keyframe: vo.flags & VoDeltaMsg::NEW_KEYFRAME != 0,
+    })
+}
+
 impl Node for FilterNode {
     fn name(&self) -> &'static str {
         NAME
@@ -622,6 +745,9 @@ impl Node for FilterNode {
     }
 
     fn on_message(&mut self, message: Message<'_>, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        if !self.options.use_imu {
+            return self.on_message_without_imu(message, out);
+        }
         match message {
             Message::Imu(imu) => self.on_imu(imu, out)?,
             Message::WheelOdom(wheel) => self.on_wheel(wheel),

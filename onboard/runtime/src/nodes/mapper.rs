@@ -226,8 +226,22 @@ pub struct MapperNode {
     dirty: bool,
     depth: DepthImage,
     labels: PixelLabels,
+    /// An image whose depth and labels are in `depth`/`labels` but whose filter state has not
+    /// arrived yet (without an IMU the odometry's state follows the image).
+    parked: Option<ParkedImage>,
     counters: MapperCounters,
 }
+
+/// The capture of the image waiting in the mapper's depth buffers.
+#[derive(Debug, Clone, Copy)]
+struct ParkedImage {
+    stamp_ns: u64,
+    pan_rad: f64,
+    tilt_rad: f64,
+}
+
+/// How long (sensor time after its capture) an image waits for its filter state.
+const MAX_STATE_WAIT_NS: u64 = 1_000_000_000;
 
 impl std::fmt::Debug for MapperNode {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -276,6 +290,7 @@ impl MapperNode {
             dirty: false,
             depth: DepthImage::default(),
             labels: PixelLabels::default(),
+            parked: None,
             counters: MapperCounters::default(),
             config,
         };
@@ -674,6 +689,7 @@ impl MapperNode {
             self.states.pop_front();
         }
         self.states.push_back(State { stamp_ns: m.stamp_ns, frame_id: m.frame_id, t_local_body, covariance });
+        self.integrate_parked();
         let current = self.submapper.current().index;
         if m.frame_id > current {
             // The switch message may still be on its way (another topic); only a long wait
@@ -724,7 +740,50 @@ impl MapperNode {
             self.counters.images_rejected += 1;
             return;
         }
-        let Some(state) = self.state_at(h.stamp_ns) else {
+        self.drop_parked();
+        let fb_q4 = (self.geometry.fx_px * self.geometry.baseline_m * 16.0) as f32;
+        self.depth.width = w;
+        self.depth.height = hgt;
+        self.depth.depth_m.clear();
+        self.depth.depth_m.extend(pixels.iter().map(|p| match p.disparity_q4 {
+            DisparityPixel::INVALID => f32::NAN,
+            0 => f32::INFINITY,
+            d => fb_q4 / f32::from(d),
+        }));
+        self.labels.width = w;
+        self.labels.height = hgt;
+        self.labels.flags.clear();
+        self.labels.flags.extend(pixels.iter().map(|p| p.labels));
+        let image = ParkedImage { stamp_ns: h.stamp_ns, pan_rad: h.pan_rad, tilt_rad: h.tilt_rad };
+        if self.states.back().is_none_or(|newest| newest.stamp_ns < h.stamp_ns) {
+            // Its state is still to come.
+            self.parked = Some(image);
+            return;
+        }
+        self.integrate(image);
+    }
+
+    /// An image parked for its state is given up (a newer image, or it waited too long).
+    fn drop_parked(&mut self) {
+        if self.parked.take().is_some() {
+            self.counters.images_without_state += 1;
+        }
+    }
+
+    /// The parked image, once a state at or after its capture exists.
+    fn integrate_parked(&mut self) {
+        if let Some(image) = self.parked
+            && self.states.back().is_some_and(|newest| newest.stamp_ns >= image.stamp_ns)
+        {
+            self.parked = None;
+            self.integrate(image);
+        }
+    }
+
+    /// Integrates the depth and labels in the buffers (captured at `image`) with the filter
+    /// state of the capture.
+    fn integrate(&mut self, image: ParkedImage) {
+        let Some(state) = self.state_at(image.stamp_ns) else {
             self.counters.images_without_state += 1;
             return;
         };
@@ -743,34 +802,21 @@ impl MapperNode {
                 }
             }
         };
-        let t_local_cam = t_local_body * self.config.calibration.t_body_left(h.pan_rad, h.tilt_rad);
-        let fb_q4 = (self.geometry.fx_px * self.geometry.baseline_m * 16.0) as f32;
-        self.depth.width = w;
-        self.depth.height = hgt;
-        self.depth.depth_m.clear();
-        self.depth.depth_m.extend(pixels.iter().map(|p| match p.disparity_q4 {
-            DisparityPixel::INVALID => f32::NAN,
-            0 => f32::INFINITY,
-            d => fb_q4 / f32::from(d),
-        }));
-        self.labels.width = w;
-        self.labels.height = hgt;
-        self.labels.flags.clear();
-        self.labels.flags.extend(pixels.iter().map(|p| p.labels));
-        self.submapper.integrate(h.stamp_ns, &self.depth, Some(&self.labels), None, &t_local_cam);
+        let t_local_cam = t_local_body * self.config.calibration.t_body_left(image.pan_rad, image.tilt_rad);
+        self.submapper.integrate(image.stamp_ns, &self.depth, Some(&self.labels), None, &t_local_cam);
         self.counters.images_integrated += 1;
 
         let pose = FilterPose {
             robot: self.own,
-            stamp_ns: h.stamp_ns,
+            stamp_ns: image.stamp_ns,
             submap_index: state.frame_id,
             t_submap_body: state.t_local_body,
             covariance: slam::covariance::from_filter(&state.t_local_body, &state.covariance),
         };
         self.remember_pose(pose);
         if let Some(t_global_body) = self.graph.online_pose(&pose) {
-            self.online.push((h.stamp_ns, t_global_body));
-            self.journal(&Record::Online { stamp_ns: h.stamp_ns, t_global_body });
+            self.online.push((image.stamp_ns, t_global_body));
+            self.journal(&Record::Online { stamp_ns: image.stamp_ns, t_global_body });
         }
     }
 
@@ -996,6 +1042,9 @@ impl Node for MapperNode {
     }
 
     fn on_tick(&mut self, now_ns: u64, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        if self.parked.is_some_and(|p| now_ns > p.stamp_ns.saturating_add(MAX_STATE_WAIT_NS)) {
+            self.drop_parked();
+        }
         self.update_graph();
         self.send_chunks(now_ns, out)
     }

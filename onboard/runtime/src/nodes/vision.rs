@@ -56,6 +56,10 @@ pub struct VisionNodeOptions {
     pub obstacles: ObstacleConfig,
     /// Longest wait (sensor time after the capture) for the filter state of a capture.
     pub prior_wait_ns: u64,
+    /// The filter fuses the odometry (it has an IMU): the odometry starts with the filter and
+    /// waits for the filter state of each capture for its prior. Without (a dataset without IMU)
+    /// it runs on every pair at once, with no prior, and its chained pose is the trajectory.
+    pub odometry_follows_filter: bool,
 }
 
 impl VisionNodeOptions {
@@ -69,6 +73,7 @@ impl VisionNodeOptions {
             vo_prior: options.vo_prior,
             obstacles: ObstacleConfig::default(),
             prior_wait_ns: 50_000_000,
+            odometry_follows_filter: options.use_imu,
         }
     }
 }
@@ -90,6 +95,9 @@ pub struct VisionNodeSummary {
     pub keyframes: u64,
     pub vo_resets: u64,
     pub vo_deltas: u64,
+    /// Sum and minimum of the deltas' inlier counts.
+    pub inliers_sum: u64,
+    pub min_inliers: Option<u32>,
     pub priors_used: u64,
     /// The filter state of the capture did not arrive in time.
     pub prior_state_missing: u64,
@@ -285,7 +293,7 @@ impl VisionNode {
         self.pending_capture_ns = Some(header.stamp_ns);
         let state_known = self.states.iter().any(|(s, _)| *s == header.stamp_ns);
         let state_passed = self.latest.is_some_and(|l| l.stamp_ns > header.stamp_ns);
-        if state_known || state_passed {
+        if !self.options.odometry_follows_filter || state_known || state_passed {
             self.run_pending_odometry(out)?;
         }
         Ok(())
@@ -307,7 +315,9 @@ impl VisionNode {
             filter.apply(&mut self.disparity);
         }
         self.depth.fill_from_disparity(&self.disparity, &self.geometry);
-        match self.latest.filter(|l| l.running) {
+        // Without an IMU the filter's frame is not levelled: no attitude to classify against.
+        let levelled = self.options.odometry_follows_filter;
+        match self.latest.filter(|l| l.running && levelled) {
             Some(latest) => {
                 let t_local_cam = latest.t_local_body * self.calibration.t_body_left(frame.pan_rad, frame.tilt_rad);
                 self.classifier.classify(&self.depth, &self.geometry, &t_local_cam, &mut self.labels);
@@ -382,8 +392,12 @@ impl VisionNode {
         let Some(capture_ns) = self.pending_capture_ns.take() else {
             return Ok(());
         };
-        let t_first_body = self.states.iter().rev().find(|(s, _)| *s == capture_ns).map(|(_, pose)| *pose);
-        if t_first_body.is_none() {
+        let t_first_body = if self.options.odometry_follows_filter {
+            self.states.iter().rev().find(|(s, _)| *s == capture_ns).map(|(_, pose)| *pose)
+        } else {
+            None
+        };
+        if t_first_body.is_none() && self.options.odometry_follows_filter {
             if !self.latest.is_some_and(|l| l.running) {
                 self.summary.frames_before_init += 1;
                 return Ok(());
@@ -428,6 +442,8 @@ impl VisionNode {
         }
         if let Some(delta) = &output.delta {
             self.summary.vo_deltas += 1;
+            self.summary.inliers_sum += u64::from(delta.inliers);
+            self.summary.min_inliers = Some(self.summary.min_inliers.map_or(delta.inliers, |m| m.min(delta.inliers)));
             if !output.new_keyframe {
                 self.keyframe_ns = Some(delta.keyframe_stamp_ns);
             }
@@ -449,6 +465,7 @@ pub fn vo_message(capture_ns: u64, output: &VoOutput) -> VoDeltaMsg {
         keyframe_stamp_ns: 0,
         t_keyframe_current_body: Pose::IDENTITY,
         covariance_body: [0.0; 36],
+        t_odom_body: Pose::from_isometry(&output.t_odom_body),
         inliers: 0,
         flags,
     };

@@ -2,8 +2,11 @@
 //! the iceoryx2 bus, on fixed-rate tasks on the wall clock.
 //!
 //! - [`node_main`]: one process (`onboard node <kind> --config rover.toml`);
-//! - [`supervisor`]: `onboard run --config rover.toml`, starts, watches and restarts the five;
-//! - [`relay`]: the radio between the robots of a simulated team, in the mission process.
+//! - [`supervisor`]: `onboard run --config rover.toml`, starts, watches and restarts the five.
+//!
+//! The same two entry points serve the `sil` harness: its binary's `run` and `node` commands call
+//! them with its own [`crate::sensors::SourceProvider`] (the simulator), and the supervisor
+//! starts the processes from whichever executable it runs in.
 //!
 //! # Time
 //! Sensor time is `CLOCK_MONOTONIC − epoch`, the epoch coming from [`EPOCH_ENV`] (set by the
@@ -11,8 +14,8 @@
 //! every process's fixed-rate task releases on one grid that starts at the epoch.
 //!
 //! # Files (in the robot's `robot.output_dir`)
-//! Written when a process ends on SIGTERM: `tasks/<process>.json` (every process), the driver's
-//! `truth_world.tum`, the filter's `filter_summary.json`, the mapper's map, graph, `estimate.tum`
+//! Written when a process ends on SIGTERM: `tasks/<process>.json` (every process; the driver's
+//! holds `time_offset_ns`, the source's stamp of sensor time 0), the filter's `filter_summary.json`, the mapper's map, graph, `estimate.tum`
 //! and `mapper_status.json`, the comms' `comms_stats.json`; the supervisor's `supervisor.json`.
 //! A restarted process overwrites its predecessor's files: they describe its last life (the
 //! filter carries its main counters across lives in its checkpoint, `state/filter.ckpt`).
@@ -26,7 +29,6 @@
 //! runs stays pending and is not lost.
 
 pub mod node_main;
-pub mod relay;
 pub mod supervisor;
 
 use std::path::{Path, PathBuf};
@@ -38,8 +40,7 @@ use nalgebra::Isometry3;
 use nix::sys::signal::{SigSet, Signal};
 use nix::time::{ClockId, clock_gettime};
 
-use crate::config::{ConfigError, RatesConfig, RoverConfig, TaskRate};
-use crate::mission::{MissionOptions, RadioPreset, Runner};
+use crate::config::{ConfigError, RatesConfig, TaskRate};
 use crate::nodes::Topic;
 
 pub use node_main::node_main;
@@ -73,6 +74,8 @@ pub enum ProcessError {
     Task(#[from] crate::task::TaskError),
     #[error("{0}")]
     Setup(String),
+    #[error("sensors: {0}")]
+    Sensors(#[from] crate::sensors::SensorSetupError),
     #[error("node: {0}")]
     Node(#[from] crate::nodes::NodeError),
     #[error("link: {0}")]
@@ -201,40 +204,12 @@ pub fn termination_flag() -> Result<Arc<AtomicBool>, ProcessError> {
     Ok(flag)
 }
 
-/// The mission options that rebuild this robot's simulated world (`mission_world`): every
-/// process builds the same deterministic world from them instead of receiving it.
-pub fn world_options(config: &RoverConfig) -> MissionOptions {
-    MissionOptions {
-        robots: usize::from(config.driver.robots),
-        scenario: config.driver.scenario.name().to_owned(),
-        duration_s: config.driver.duration_s,
-        seed: config.driver.seed,
-        downscale: config.camera.downscale,
-        out: config.robot.output_dir(),
-        runner: Runner::Process,
-        radio: RadioPreset::SerialRadio,
-        truth_loop_closures: false,
-        ..MissionOptions::default()
-    }
-}
-
-/// Writes `rows` as a TUM trajectory (nothing for an empty one).
+/// Writes `rows` as a TUM trajectory in sensor time (nothing for an empty one).
 pub fn write_tum(path: &Path, rows: &[(u64, Isometry3<f64>)]) -> Result<(), ProcessError> {
     if rows.is_empty() {
         return Ok(());
     }
-    let trajectory = crate::mission::score::trajectory(rows).map_err(|e| ProcessError::Output(e.to_string()))?;
-    let mut text = String::new();
-    eval::io::write_tum(&trajectory, &mut text).map_err(|e| ProcessError::Output(e.to_string()))?;
-    std::fs::write(path, text).map_err(io_error(path))
-}
-
-/// Reads a TUM trajectory as `(stamp_ns, pose)` rows.
-pub fn read_tum(path: &Path) -> Result<Vec<(u64, Isometry3<f64>)>, ProcessError> {
-    let text = std::fs::read_to_string(path).map_err(io_error(path))?;
-    let trajectory =
-        eval::io::parse_tum(&text).map_err(|e| ProcessError::Output(format!("{}: {e}", path.display())))?;
-    Ok(trajectory.stamps_s.iter().map(|s| (s * 1e9).round().max(0.0) as u64).zip(trajectory.poses).collect())
+    crate::tum::write_tum(path, rows, 0).map_err(io_error(path))
 }
 
 /// Writes `value` as pretty JSON.
@@ -261,20 +236,5 @@ mod tests {
             assert!(kind.publishes().contains(&Topic::TaskStats));
         }
         assert_eq!(NodeKind::parse("ground"), None);
-    }
-
-    #[test]
-    fn tum_round_trip_keeps_nanosecond_stamps() {
-        let dir = std::env::temp_dir().join(format!("onboard-process-tum-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("t.tum");
-        let rows: Vec<(u64, Isometry3<f64>)> = [5_000_000u64, 29_995_000_001, 3_600_000_000_007]
-            .iter()
-            .map(|&s| (s, Isometry3::translation(s as f64 * 1e-9, 1.0, -2.0)))
-            .collect();
-        write_tum(&path, &rows).unwrap();
-        let back = read_tum(&path).unwrap();
-        assert_eq!(back.iter().map(|r| r.0).collect::<Vec<_>>(), rows.iter().map(|r| r.0).collect::<Vec<_>>());
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1,46 +1,44 @@
 //! One on-board process: `onboard node <driver|vision|filter|mapper|comms> --config rover.toml`.
 //!
-//! Builds its node as the lockstep mission does (`mission::lockstep::robot_stack`), attaches it to
-//! the robot's bus, and runs a [`FixedRateTask`] at the process's configured rate: per release
-//! it drains the inbox into [`Node::on_message`], then calls [`Node::on_tick`] with the sensor
-//! time of the release (the comms process also pumps its UDP links). About once a second it
-//! publishes its task's [`msgs::TaskStatsMsg`]. On SIGTERM it finishes the current release, writes
-//! its files (module docs of [`crate::process`]) and exits 0.
+//! Builds its node from the configuration ([`crate::stack`], as the lockstep runners do),
+//! attaches it to the robot's bus, and runs a [`FixedRateTask`] at the process's configured
+//! rate: per release it drains the inbox into [`Node::on_message`], then calls [`Node::on_tick`]
+//! with the sensor time of the release (the comms process also pumps its links). About once a
+//! second it publishes its task's [`msgs::TaskStatsMsg`]. On SIGTERM it finishes the current
+//! release, writes its files (module docs of [`crate::process`]) and exits 0.
 //!
-//! Only the driver builds the simulated world; vision, filter and mapper need the scenario alone
-//! (camera, IMU model), so they are back within a fraction of a second after a restart. The
-//! filter checkpoints into `state/filter.ckpt` and resumes from it once it knows the epoch
-//! ([`FilterNode::resume`]). The mapper's submap policy comes from the configuration's
-//! `[mapper]`.
+//! Only the driver opens the sensor source (through the [`SourceProvider`] of the binary it runs
+//! in: the firmware's replays, or the `sil` harness's simulator); vision, filter and mapper need
+//! the [`crate::sensors::SensorSetup`] alone, so they are back within a fraction of a second
+//! after a restart. The filter checkpoints into `state/filter.ckpt` and resumes from it once it
+//! knows the epoch ([`FilterNode::resume`]). The mapper's submap policy comes from `[mapper]`.
+//!
+//! A replay runs at `driver.replay_speed` of its recorded pace: sensor time is the wall clock
+//! since the epoch times that factor, for every process of the robot alike.
 
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
 use hal::link::Link;
+use hal::serial::SerialLink;
 use hal::udp::UdpLink;
 use protocol::RobotId;
 use serde_json::{Value, json};
-use sim::scenario::{Scenario, ScenarioOptions};
-use sim::world::World;
 
-use super::{
-    NodeKind, ProcessError, READY_DIR, io_error, monotonic_ns, termination_flag, wait_for_epoch, world_options,
-    write_json,
-};
+use super::{NodeKind, ProcessError, READY_DIR, io_error, monotonic_ns, termination_flag, wait_for_epoch, write_json};
 use crate::bus::{Bus, BusInbox, BusOutbox, ImageGeometry};
-use crate::config::{LinkKind, RoverConfig};
-use crate::mission::world::{mission_world, robot_id};
+use crate::config::{DriverKind, LinkKind, RoverConfig};
 use crate::nodes::comms::{CommsConfig, CommsNode, LinkConfig, LinkDriver, LinkId};
 use crate::nodes::driver::{DriverNode, DriverOptions};
-use crate::nodes::filter::{FilterNode, FilterNodeOptions};
+use crate::nodes::filter::FilterNode;
 use crate::nodes::mapper::MapperNode;
-use crate::nodes::vision::{VisionNode, VisionNodeOptions};
+use crate::nodes::vision::VisionNode;
 use crate::nodes::{Message, Node, Outbox};
+use crate::sensors::{SensorSetup, SourceProvider, sensor_setup};
+use crate::stack::{self, protocol_robot_id};
 use crate::task::rt::{self, RtReport};
 use crate::task::{FixedRateTask, RunEnd};
-use crate::team_record::scenario_vio_options;
-use hal::sensor::StereoCalibration;
 
 /// Task telemetry period.
 const STATS_PERIOD_NS: u64 = 1_000_000_000;
@@ -79,55 +77,9 @@ impl Hosted {
     }
 }
 
-fn world(config: &RoverConfig) -> Result<Arc<World>, ProcessError> {
-    mission_world(&world_options(config)).map_err(|e| ProcessError::Setup(e.to_string()))
-}
-
-fn driver_node(world: &Arc<World>, config: &RoverConfig) -> Result<DriverNode, ProcessError> {
-    let end_ns = (config.driver.duration_s * 1e9) as u64;
-    Ok(DriverNode::new(Arc::clone(world), usize::from(config.robot.id), DriverOptions { end_stamp_ns: Some(end_ns) })?)
-}
-
-/// The scenario of [`world`] without building the world (terrain, shadows: seconds of CPU): all
-/// that vision, filter and mapper need, so that they are back within a fraction of a second
-/// after a restart.
-fn scenario(config: &RoverConfig) -> Result<Scenario, ProcessError> {
-    let w = world_options(config);
-    let options = ScenarioOptions {
-        robots: w.robots,
-        duration_s: w.duration_s,
-        seed: w.seed,
-        downscale: w.downscale,
-        world_size_m: None,
-        flyer: false,
-    };
-    sim::scenario::preset(&w.scenario, &options).map_err(|e| ProcessError::Setup(format!("scenario: {e}")))
-}
-
-/// The raw calibration the driver's pairs have (`SimSensorSource::stereo_calibration`).
-fn camera_calibration(scenario: &Scenario, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
-    let setup = scenario
-        .robots
-        .get(usize::from(config.robot.id))
-        .ok_or_else(|| ProcessError::Setup(format!("robot {} is not in the scenario", config.robot.id)))?;
-    let model = &setup.model;
-    Ok(model.camera.calibration(&model.t_body_cam(0.0, 0.0), model.head))
-}
-
-fn vision_node(scenario: &Scenario, config: &RoverConfig) -> Result<VisionNode, ProcessError> {
-    let calibration = camera_calibration(scenario, config)?;
-    Ok(VisionNode::new(&calibration, VisionNodeOptions::from_vio(&scenario_vio_options(scenario, true)))?)
-}
-
-/// The calibration of the images the vision process publishes (rectified as `VisionNode` does),
-/// without building a vision node and its SGM matcher.
-fn rectified_calibration(scenario: &Scenario, config: &RoverConfig) -> Result<StereoCalibration, ProcessError> {
-    let raw = camera_calibration(scenario, config)?;
-    if raw.rectified {
-        return Ok(raw);
-    }
-    let rectifier = vision::Rectifier::new(&raw).map_err(|e| ProcessError::Setup(format!("rectification: {e}")))?;
-    Ok(rectifier.rectified_calibration())
+fn driver_node(config: &RoverConfig, sources: &dyn SourceProvider) -> Result<DriverNode, ProcessError> {
+    let source = sources.open(config)?;
+    Ok(DriverNode::new(source, DriverOptions { end_stamp_ns: config.driver.end_stamp_ns() }))
 }
 
 fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessError> {
@@ -140,7 +92,7 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
             if !peers.is_empty() {
                 let bind = link.bind_addr().ok_or_else(|| ProcessError::Setup(format!("link.bind {:?}", link.bind)))?;
                 let udp = UdpLink::bind(bind)?.with_peers(peers.iter().map(|(_, a)| *a));
-                let peer_ids = peers.iter().map(|(id, _)| RobotId(robot_id(usize::from(*id)) as u8)).collect();
+                let peer_ids = peers.iter().map(|(id, _)| RobotId(protocol_robot_id(*id) as u8)).collect();
                 links.push(LinkConfig::team(
                     TEAM_LINK,
                     "team radio",
@@ -153,9 +105,18 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
         }
         LinkKind::None => {}
         LinkKind::Serial => {
-            return Err(ProcessError::Setup(
-                "link.kind = \"serial\" is not supported by the process runner yet".into(),
+            let device = link.serial_device.as_deref().unwrap_or_default();
+            let serial = SerialLink::open(device, link.serial_baud)?;
+            // A serial radio is a broadcast medium: every peer hears every packet.
+            let peer_ids = link.peers.iter().map(|p| RobotId(protocol_robot_id(p.robot_id) as u8)).collect();
+            links.push(LinkConfig::team(
+                TEAM_LINK,
+                "team radio",
+                serial.framing(),
+                link.bandwidth_bytes_per_s,
+                peer_ids,
             ));
+            driver.add(TEAM_LINK, Box::new(serial));
         }
     }
     if let Some(feed) = link.ground_feed_addr() {
@@ -163,7 +124,7 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
         links.push(LinkConfig::ground(GROUND_LINK, udp.framing(), link.ground_bandwidth_bytes_per_s));
         driver.add(GROUND_LINK, Box::new(udp));
     }
-    let mut comms_config = CommsConfig::new(RobotId(robot_id(usize::from(config.robot.id)) as u8), links);
+    let mut comms_config = CommsConfig::new(RobotId(protocol_robot_id(config.robot.id) as u8), links);
     // A new boot id per start: peers reset their channels to a restarted process.
     comms_config.boot_id = (monotonic_ns() / 1_000) as u32 ^ std::process::id();
     if let Some(key) = &link.ground_key_file {
@@ -173,30 +134,28 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
     Ok((comms, driver))
 }
 
-fn build(kind: NodeKind, config: &RoverConfig, dir: &Path) -> Result<Hosted, ProcessError> {
+fn build(
+    kind: NodeKind,
+    config: &RoverConfig,
+    setup: &SensorSetup,
+    dir: &Path,
+    sources: &dyn SourceProvider,
+) -> Result<Hosted, ProcessError> {
     Ok(match kind {
-        NodeKind::Driver => Hosted::Driver(Box::new(driver_node(&world(config)?, config)?)),
-        NodeKind::Vision => Hosted::Vision(Box::new(vision_node(&scenario(config)?, config)?)),
+        NodeKind::Driver => Hosted::Driver(Box::new(driver_node(config, sources)?)),
+        NodeKind::Vision => Hosted::Vision(Box::new(stack::vision_node(config, setup)?)),
         NodeKind::Filter => {
-            let scenario = scenario(config)?;
             let state = dir.join("state");
             std::fs::create_dir_all(&state).map_err(io_error(&state))?;
-            let mut options = FilterNodeOptions::from_vio(&scenario_vio_options(&scenario, true));
-            options.checkpoint_path = Some(state.join("filter.ckpt"));
-            Hosted::Filter(Box::new(FilterNode::new(options)))
+            let mut filter = stack::filter_node(config, setup);
+            filter.set_checkpoint_path(state.join("filter.ckpt"));
+            Hosted::Filter(Box::new(filter))
         }
         NodeKind::Mapper => {
-            let calibration = rectified_calibration(&scenario(config)?, config)?;
-            let mut mapper_config = crate::mission::world::mapper_config(
-                usize::from(config.robot.id),
-                calibration,
-                config.camera.downscale,
-            );
+            let rectified =
+                stack::rectified_calibration(setup).map_err(|e| ProcessError::Setup(format!("rectification: {e}")))?;
+            let mut mapper_config = stack::mapper_config(config, rectified);
             mapper_config.state_dir = Some(dir.join("state"));
-            mapper_config.policy = mapper::submap::SubmapPolicy {
-                max_position_sigma_m: config.mapper.max_position_sigma_m,
-                max_distance_m: config.mapper.submap_max_distance_m,
-            };
             Hosted::Mapper(Box::new(
                 MapperNode::new(mapper_config).map_err(|e| ProcessError::Setup(format!("mapper: {e}")))?,
             ))
@@ -217,8 +176,9 @@ fn grid_start_ns(epoch_ns: u64, period_ns: u64, now_ns: u64) -> u64 {
     epoch_ns + (now_ns - epoch_ns).div_ceil(period_ns) * period_ns
 }
 
-/// Runs process `kind` of the robot configured in `config_path` until SIGTERM or SIGINT.
-pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError> {
+/// Runs process `kind` of the robot configured in `config_path` until SIGTERM or SIGINT; the
+/// driver takes its sensors from `sources`.
+pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvider) -> Result<(), ProcessError> {
     let stop = termination_flag()?;
     let setup_start = Instant::now();
     let config = RoverConfig::load(config_path)?;
@@ -226,9 +186,19 @@ pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError>
     let tasks_dir = dir.join("tasks");
     std::fs::create_dir_all(&tasks_dir).map_err(io_error(&tasks_dir))?;
 
-    let mut hosted = build(kind, &config, &dir)?;
-    let (width_px, height_px) = config.camera.image_size_px();
-    let bus = Bus::open(config.robot.bus_id(), kind.name(), ImageGeometry { width_px, height_px })?;
+    let setup = sensor_setup(&config)?;
+    let mut hosted = build(kind, &config, &setup, &dir, sources)?;
+    if let Hosted::Driver(driver) = &hosted
+        && let Some(from_source) = driver.stereo_calibration()
+        && from_source != setup.calibration
+    {
+        return Err(ProcessError::Setup(
+            "the sensor source's stereo calibration differs from the configuration's (camera.calibration)".into(),
+        ));
+    }
+    let geometry =
+        ImageGeometry { width_px: setup.calibration.left.width_px, height_px: setup.calibration.left.height_px };
+    let bus = Bus::open(config.robot.bus_id(), kind.name(), geometry)?;
     let mut outbox = bus.outbox(kind.publishes())?;
     let mut inbox = bus.inbox(hosted.node().subscriptions())?;
     let ready = dir.join(READY_DIR);
@@ -236,6 +206,8 @@ pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError>
     std::fs::write(ready.join(kind.name()), b"").map_err(io_error(&ready))?;
     let setup_s = setup_start.elapsed().as_secs_f64();
     let Some(epoch_ns) = wait_for_epoch(&stop)? else { return Ok(()) };
+    let speed = if config.driver.kind == DriverKind::Replay { config.driver.replay_speed } else { 1.0 };
+    let sensor_ns = move |monotonic: u64| (monotonic.saturating_sub(epoch_ns) as f64 * speed) as u64;
     if let Hosted::Filter(filter) = &mut hosted {
         match filter.resume(epoch_ns) {
             Ok(Some(stamp_ns)) => eprintln!("filter: resumed from the checkpoint at {:.3} s", stamp_ns as f64 * 1e-9),
@@ -262,7 +234,7 @@ pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError>
     let mut stats_failed = 0u64;
     loop {
         let end = task.run_for_ns(STATS_PERIOD_NS, |release| {
-            hosted.release(release.start_ns.saturating_sub(epoch_ns), &mut inbox, &mut outbox)
+            hosted.release(sensor_ns(release.start_ns), &mut inbox, &mut outbox)
         })?;
         // Telemetry is best effort: a full buffer never stops the task.
         if outbox.publish(Message::TaskStats(&task.stats())).is_err() {
@@ -272,7 +244,7 @@ pub fn node_main(kind: NodeKind, config_path: &Path) -> Result<(), ProcessError>
             break;
         }
     }
-    let now_ns = monotonic_ns().saturating_sub(epoch_ns);
+    let now_ns = sensor_ns(monotonic_ns());
     let extra = finish(&mut hosted, &dir, now_ns, &mut inbox, &mut outbox)?;
     let stats = task.stats();
     let mut topics = serde_json::Map::new();
@@ -335,9 +307,9 @@ fn finish(
 ) -> Result<Value, ProcessError> {
     match hosted {
         Hosted::Driver(driver) => {
-            super::write_tum(&dir.join("truth_world.tum"), driver.truth_log())?;
             let c = driver.counts();
-            Ok(json!({"imu": c.imu, "wheel": c.wheel, "stereo": c.stereo, "finished": driver.finished()}))
+            Ok(json!({"imu": c.imu, "wheel": c.wheel, "stereo": c.stereo, "out_of_order": c.out_of_order,
+                      "finished": driver.finished(), "time_offset_ns": driver.time_offset_ns()}))
         }
         Hosted::Vision(vision) => {
             let s = vision.summary();
@@ -367,7 +339,7 @@ fn finish(
                 "imu_replayed": s.imu_replayed,
                 "checkpoints_written": s.checkpoints_written,
                 "checkpoint_errors": s.checkpoint_errors,
-                "frame_id": filter.filter().frame_id(),
+                "frame_id": filter.frame_id(),
             });
             write_json(&dir.join("filter_summary.json"), &summary)?;
             Ok(summary)
@@ -377,15 +349,15 @@ fn finish(
             hosted.release(now_ns, inbox, outbox)?;
             let Hosted::Mapper(mapper) = hosted else { return Ok(Value::Null) };
             let estimate = mapper.online_trajectory().to_vec();
-            let written = crate::mission::write_outputs(dir, mapper, &estimate, None)
-                .map_err(|e| ProcessError::Output(e.to_string()))?;
+            let written = mapper.write_outputs(dir).map_err(|e| ProcessError::Output(e.to_string()))?;
+            super::write_tum(&dir.join("estimate.tum"), &estimate)?;
             let c = mapper.counters();
             let status = json!({
                 "first_estimate_ns": estimate.first().map(|r| r.0),
                 "estimate_poses": estimate.len(),
-                "graph_nodes": written.graph_nodes,
-                "graph_factors": written.graph_factors,
-                "connected": written.connected,
+                "graph_nodes": written.graph.nodes,
+                "graph_factors": written.graph.factors,
+                "connected": mapper.team_estimate().connected_robots(),
                 "submaps_finished": c.submaps_finished,
                 "submaps_sent": c.submaps_sent,
                 "submaps_received": c.submaps_received,
@@ -427,19 +399,6 @@ fn finish(
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
-
-    #[test]
-    fn the_scenario_gives_the_drivers_calibration() {
-        let mut config = RoverConfig::default();
-        config.driver.robots = 2;
-        config.driver.duration_s = 5.0;
-        config.robot.id = 1;
-        let world = world(&config).unwrap();
-        let from_driver = driver_node(&world, &config).unwrap().stereo_calibration().unwrap();
-        assert_eq!(camera_calibration(&scenario(&config).unwrap(), &config).unwrap(), from_driver);
-        config.robot.id = 2;
-        assert!(camera_calibration(&scenario(&config).unwrap(), &config).is_err());
-    }
 
     #[test]
     fn late_starter_joins_the_shared_grid() {

@@ -1,63 +1,32 @@
-//! Visual-inertial odometry on a [`hal::sensor::SensorSource`]: rectification, keyframe stereo
-//! odometry, and the local reference filter (thesis §4.1), as the rover runs them.
+//! Visual(-inertial) odometry on a recorded dataset: `onboard vio`. The dataset is replayed
+//! through the rover's own nodes on the lockstep runner ([`crate::lockstep::RobotStack`]: driver,
+//! vision, filter, mapper, built from the configuration as on the rover), so what it measures is
+//! what the rover runs; `onboard run --config` with `driver.kind = "replay"` runs the same nodes
+//! as separate processes.
 //!
-//! Data flow per event ([`VioPipeline::process_event`]):
+//! The estimate is the robot's online one, the mapper's (`estimate.tum` of a rover run): the
+//! body pose at each image in the robot's first local frame, as the robot had it at that moment.
+//! Stamps are the dataset's own (sensor time plus [`DatasetReport::time_offset_ns`]).
 //!
-//! - **Stereo** (capture time `t_c`): the filter clones its state at `t_c` (the camera trigger,
-//!   spec §2.1: "at the exact time of image capture"); the raw pair is rectified when the
-//!   calibration is not rectified, optionally matched by SGM (`fpga_model`, as the FPGA does), and
-//!   given to [`vision::StereoOdometry`] with the filter's keyframe→current motion as a prior. The
-//!   result is *queued*: it reaches the filter only when the IMU stream passes `t_c + latency`
-//!   (default 250 ms, the thesis's SGM + VO latency), so every VO update is a delayed update
-//!   against the clone of its capture time.
-//! - **IMU**: before initialization the samples are averaged; after [`VioOptions::init_window_ns`]
-//!   of data the filter starts at rest (roll and pitch from the mean specific force, gyro bias from
-//!   the mean rate, position and yaw zero). The IMU must therefore start while the robot stands
-//!   still, as a rover does at power-up; a moving start needs [`VioPipeline::initialize_with_pose`].
-//!   Frames before the start are skipped: the odometry's first keyframe must have a filter clone.
-//!   Then: propagation, the queued VO results that are due (keyframe marking first, then the
-//!   relative-pose update), a zero-velocity update at 10 Hz while [`filter::StandstillDetector`]
-//!   says standing, the frame-switch policy, and one output pose per sample.
-//! - **Wheel odometry**: a body-velocity update on arrival (wheel odometry has no processing delay).
-//!
-//! Without IMU the output is the odometry's own chained pose `t_odom_body`, one per frame.
-//!
-//! Output poses are always in the *first* local frame: after each frame switch the reported
-//! `t_old_new` is chained, and `t_first_body = t_first_local · t_local_body`.
+//! [`VioOptions`] gathers what the vision and filter nodes take from the configuration
+//! ([`crate::stack::vio_options`]).
 
-pub mod dataset;
-pub mod pipeline;
-pub mod score;
-
-pub use dataset::{Dataset, DatasetKind, open_dataset};
-pub use pipeline::{LocalPoseSample, VioPipeline, VioSummary};
-pub use score::{Score, load_ground_truth, score};
+use std::path::Path;
+use std::time::Instant;
 
 use filter::FilterConfig;
-use filter::config::ImuNoise;
-use mapper::submap::SubmapPolicy;
+use hal::replay::DatasetKind;
+use nalgebra::{Isometry3, Vector3};
 use vision::VoConfig;
 
-/// When the pipeline asks the filter for a frame-of-reference switch (the mapper's request in the
-/// full system; thesis §4.1.2 starts a submap after 7 m or at 0.2 m position uncertainty). The
-/// rules are OR-ed; with none set the filter never switches.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct SwitchPolicy {
-    /// Switch when the body is this far (straight line) from the current frame's origin.
-    pub distance_m: Option<f64>,
-    /// Switch when the largest position standard deviation (diagonal) exceeds this.
-    pub sigma_m: Option<f64>,
-    /// The mapper's rule, exactly as [`mapper::submap::Submapper::on_filter_state`] applies it: the
-    /// worst-direction position sigma ([`SubmapPolicy::position_sigma_m`]) above
-    /// `max_position_sigma_m`, or the path length of the filter's body positions since the last
-    /// switch above `max_distance_m`. So the filter switches where the mapper would request it.
-    pub submap: Option<SubmapPolicy>,
-    /// Evaluate the rules only on the filter states whose stamp reaches the next multiple of
-    /// this period (the mapper sees the filter pose with each image, i.e. at the camera rate);
-    /// `None` = at every IMU sample. The submap path length is summed over the evaluated states,
-    /// as the mapper sums the states it sees.
-    pub period_ns: Option<u64>,
-}
+use crate::config::{DriverKind, RoverConfig};
+use crate::lockstep::{NODE_NAMES, RobotStack, STEP_NS, StackError};
+use crate::nodes::driver::DriverCounts;
+use crate::nodes::filter::FilterNodeSummary;
+use crate::nodes::vision::VisionNodeSummary;
+use crate::sensors::{FirmwareSources, SensorSetupError, SourceProvider, sensor_setup};
+
+pub use crate::sensors::EUROC_IMU_NOISE;
 
 /// Which odometry results become filter updates.
 ///
@@ -73,11 +42,12 @@ pub enum VoUpdates {
     Keyframes,
 }
 
-/// Configuration of a [`VioPipeline`].
+/// The odometry's and the filter's settings (from the configuration: [`crate::stack::vio_options`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct VioOptions {
     pub vo: VoConfig,
-    /// Depth from the SGM disparity map (`fpga_model`) instead of sparse stereo matching.
+    /// Depth for the odometry from the SGM disparity map (`fpga_model`) instead of its sparse
+    /// stereo matching.
     pub sgm: bool,
     /// Worker threads of the SGM matcher.
     pub sgm_threads: usize,
@@ -88,7 +58,6 @@ pub struct VioOptions {
     pub zupt: bool,
     /// Sensor time between an image's capture and the arrival of its VO result at the filter.
     pub latency_ns: u64,
-    pub switch: SwitchPolicy,
     /// Filter tuning: IMU noise densities, gravity at the site, gates, initial sigmas.
     pub filter: FilterConfig,
     /// IMU data averaged for the at-rest initialization.
@@ -104,20 +73,7 @@ pub struct VioOptions {
     /// default 8 comes from the 20-seed simulation (onboard/BENCHMARKS.md): it brings the
     /// orientation NEES into its chi-square bounds.
     pub vo_covariance_scale: f64,
-    /// Log the filter's pose in its current local frame with covariance
-    /// ([`VioPipeline::pose_log`]) on the filter state whose stamp reaches the next multiple of
-    /// this period. `None` = no log. The simulator's IMU and camera share one grid from stamp 0
-    /// (IMU 200 Hz, camera 10 Hz), so a 100 ms period logs exactly at the capture stamps.
-    pub pose_log_period_ns: Option<u64>,
 }
-
-/// The EuRoC ADIS16448 densities (`imu0/sensor.yaml` of EuRoC), used when a dataset has none.
-pub const EUROC_IMU_NOISE: ImuNoise = ImuNoise {
-    gyro_noise_density: 1.6968e-4,
-    gyro_random_walk: 1.9393e-5,
-    accel_noise_density: 2.0e-3,
-    accel_random_walk: 3.0e-3,
-};
 
 /// Relative scale and misalignment error of EuRoC's ADIS16448 gyro (datasheet: ±1 % initial
 /// sensitivity tolerance; 0.5 % at 1σ makes the ground-truth-corrected filter consistent over
@@ -137,7 +93,6 @@ impl Default for VioOptions {
             use_wheel: true,
             zupt: true,
             latency_ns: 250_000_000,
-            switch: SwitchPolicy::default(),
             filter: FilterConfig {
                 gyro_scale_sigma: EUROC_GYRO_SCALE_SIGMA,
                 ..FilterConfig::from_imu_noise(EUROC_IMU_NOISE, EARTH_GRAVITY_MPS2)
@@ -147,24 +102,122 @@ impl Default for VioOptions {
             vo_prior: true,
             vo_updates: VoUpdates::EveryFrame,
             vo_covariance_scale: 8.0,
-            pose_log_period_ns: None,
         }
     }
 }
 
-/// Why the pipeline stopped.
+/// Why a dataset run failed.
 #[derive(Debug, thiserror::Error)]
 pub enum VioError {
     #[error("{0}")]
-    Sensor(#[from] hal::sensor::SensorError),
+    Sensors(#[from] SensorSetupError),
     #[error("{0}")]
-    Rectify(#[from] vision::RectifyError),
-    #[error("{0}")]
-    Odometry(#[from] vision::VoError),
-    #[error("{0}")]
-    Filter(#[from] filter::FilterError),
-    #[error("SGM: {0}")]
-    Sgm(String),
+    Stack(#[from] StackError),
+    #[error("configuration: {0}")]
+    Config(#[from] crate::config::ConfigError),
     #[error("{0}")]
     Input(String),
+}
+
+/// The configuration `onboard vio` runs a dataset with: the firmware's defaults, the dataset as
+/// a replay, a robot of its own. Callers adjust it (the CLI's options) before
+/// [`run_dataset`].
+pub fn dataset_config(dataset: &Path) -> RoverConfig {
+    let mut config = RoverConfig::default();
+    config.robot.name = "vio".into();
+    config.driver.kind = DriverKind::Replay;
+    config.driver.replay_path = Some(dataset.to_owned());
+    config
+}
+
+/// What a dataset run measured.
+#[derive(Debug, Clone)]
+pub struct DatasetReport {
+    pub layout: DatasetKind,
+    /// The filter fused the IMU (`"vio"`) or the odometry ran alone (`"vo"`).
+    pub use_imu: bool,
+    /// The dataset's stamp of sensor time 0.
+    pub time_offset_ns: u64,
+    /// The robot's online estimate, sensor time (add [`DatasetReport::time_offset_ns`] for the
+    /// dataset's clock).
+    pub estimate: Vec<(u64, Isometry3<f64>)>,
+    /// Capture stamps of the dataset's pairs (dataset clock).
+    pub image_stamps_ns: Vec<u64>,
+    pub driver: DriverCounts,
+    pub vision: VisionNodeSummary,
+    pub filter: FilterNodeSummary,
+    /// Frame switches the mapper asked for.
+    pub switch_requests: u64,
+    pub initial_gyro_bias_radps: Option<Vector3<f64>>,
+    pub final_gyro_bias_radps: Option<Vector3<f64>>,
+    pub final_accel_bias_mps2: Option<Vector3<f64>>,
+    /// Sensor time replayed.
+    pub data_duration_s: f64,
+    /// Handler time per node (driver, vision, filter, mapper), s.
+    pub node_seconds: Vec<(&'static str, f64)>,
+    pub wall_s: f64,
+}
+
+impl DatasetReport {
+    /// The estimate in the dataset's clock.
+    pub fn estimate_in_dataset_time(&self) -> Vec<(u64, Isometry3<f64>)> {
+        self.estimate.iter().map(|(s, p)| (s + self.time_offset_ns, *p)).collect()
+    }
+
+    /// Largest distance of any estimate pose from the first one (m).
+    pub fn max_displacement_m(&self) -> f64 {
+        let Some((_, first)) = self.estimate.first() else { return 0.0 };
+        self.estimate.iter().map(|(_, p)| (p.translation.vector - first.translation.vector).norm()).fold(0.0, f64::max)
+    }
+}
+
+/// Replays the dataset of `config` through the robot's nodes on the lockstep runner. Unless
+/// `config.driver.duration_s` says otherwise, the replay ends once the last image's odometry
+/// result has reached the filter (IMU data after it has no vision to correct it: EuRoC V1_01's
+/// excerpt has 1 s of images and 144 s of IMU); `all_imu` replays everything.
+pub fn run_dataset(config: &RoverConfig, all_imu: bool) -> Result<DatasetReport, VioError> {
+    let wall = Instant::now();
+    let dataset = crate::sensors::open_replay(config)?;
+    let (Some(&first_image_ns), Some(&last_image_ns)) =
+        (dataset.image_stamps_ns.first(), dataset.image_stamps_ns.last())
+    else {
+        return Err(VioError::Input("the dataset has no stereo pairs".into()));
+    };
+    let first_ns = dataset.first_stamp_ns.min(first_image_ns);
+    let mut config = config.clone();
+    if config.driver.duration_s.is_none() && !all_imu {
+        let end_ns = (last_image_ns - first_ns).saturating_add((config.filter.vo_latency_ms * 1e6).round() as u64);
+        config.driver.duration_s = Some(end_ns as f64 * 1e-9);
+    }
+    config.validate()?;
+    let setup = sensor_setup(&config)?;
+    let source = FirmwareSources.open(&config)?;
+    let mut stack = RobotStack::new(&config, &setup, source, None, None)?;
+    let mut now_ns = 0;
+    while !stack.driver.finished() {
+        stack.step(now_ns).map_err(StackError::Node)?;
+        now_ns += STEP_NS;
+    }
+    stack.finish(now_ns).map_err(StackError::Node)?;
+
+    let filter = stack.filter.summary();
+    let state = stack.filter.filter().state();
+    let use_imu = crate::stack::vio_options(&config, &setup).use_imu;
+    Ok(DatasetReport {
+        layout: dataset.kind,
+        use_imu,
+        time_offset_ns: stack.driver.time_offset_ns().unwrap_or(first_ns),
+        estimate: stack.mapper.online_trajectory().to_vec(),
+        image_stamps_ns: dataset.image_stamps_ns.clone(),
+        driver: stack.driver.counts(),
+        vision: stack.vision.summary(),
+        filter,
+        switch_requests: stack.mapper.counters().switch_requests,
+        initial_gyro_bias_radps: stack.filter.initial_gyro_bias_radps(),
+        final_gyro_bias_radps: state.filter(|_| use_imu).map(|s| s.gyro_bias_radps),
+        final_accel_bias_mps2: state.filter(|_| use_imu).map(|s| s.accel_bias_mps2),
+        data_duration_s: now_ns as f64 * 1e-9,
+        node_seconds: NODE_NAMES.iter().copied().zip(stack.times.seconds.iter().copied()).collect(),
+        wall_s: wall.elapsed().as_secs_f64(),
+    })
 }

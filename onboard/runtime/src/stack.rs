@@ -1,0 +1,98 @@
+//! One robot's nodes built from its configuration: the only place the process runner
+//! ([`crate::process::node_main`]), the lockstep runners and `onboard vio` get their vision,
+//! filter and mapper from, so that all of them run the same code with the same settings.
+
+use filter::FilterConfig;
+use hal::sensor::StereoCalibration;
+
+use crate::config::{RoverConfig, VoUpdatesConfig};
+use crate::nodes::NodeError;
+use crate::nodes::filter::{FilterNode, FilterNodeOptions};
+use crate::nodes::mapper::MapperConfig;
+use crate::nodes::vision::{VisionNode, VisionNodeOptions};
+use crate::sensors::SensorSetup;
+use crate::vio::{VioOptions, VoUpdates};
+
+/// Protocol robot id of the robot with configuration id `id` (protocol ids start at 1).
+pub fn protocol_robot_id(id: u16) -> u16 {
+    id.saturating_add(1)
+}
+
+/// The filter's configuration: the IMU noise of `setup` (the configuration's, else the dataset's),
+/// the site's gravity, the IMU rate and the initial bias sigmas of `config`.
+pub fn filter_config(config: &RoverConfig, setup: &SensorSetup) -> FilterConfig {
+    let mut filter = FilterConfig::from_imu_noise(setup.imu_noise, config.imu.gravity_mps2);
+    filter.imu_rate_hz = config.rates.imu_hz;
+    filter.gyro_scale_sigma = config.imu.gyro_scale_sigma;
+    if let Some(sigma) = config.imu.gyro_bias_sigma_radps {
+        filter.initial.gyro_bias_radps = sigma;
+    }
+    if let Some(sigma) = config.imu.accel_bias_sigma_mps2 {
+        filter.initial.accel_bias_mps2 = sigma;
+    }
+    filter
+}
+
+/// The odometry and filter options of `config` (IMU only when the source has one).
+pub fn vio_options(config: &RoverConfig, setup: &SensorSetup) -> VioOptions {
+    let f = &config.filter;
+    let v = &config.vision;
+    VioOptions {
+        sgm: v.sgm_depth_for_vo,
+        sgm_threads: v.sgm_threads,
+        use_imu: f.use_imu && setup.has_imu,
+        use_wheel: f.use_wheel,
+        zupt: f.zupt,
+        latency_ns: (f.vo_latency_ms * 1e6).round() as u64,
+        filter: filter_config(config, setup),
+        init_window_ns: (f.init_window_ms * 1e6).round() as u64,
+        end_stamp_ns: config.driver.end_stamp_ns(),
+        vo_prior: v.vo_prior,
+        vo_updates: match f.vo_updates {
+            VoUpdatesConfig::EveryFrame => VoUpdates::EveryFrame,
+            VoUpdatesConfig::Keyframes => VoUpdates::Keyframes,
+        },
+        vo_covariance_scale: f.vo_covariance_scale,
+        ..VioOptions::default()
+    }
+}
+
+/// The vision node's options.
+pub fn vision_options(config: &RoverConfig, setup: &SensorSetup) -> VisionNodeOptions {
+    let mut options = VisionNodeOptions::from_vio(&vio_options(config, setup));
+    options.sgm.disparities = config.vision.sgm_disparities;
+    options.despeckle = config.vision.despeckle;
+    options.prior_wait_ns = (config.vision.prior_wait_ms * 1e6).round() as u64;
+    options
+}
+
+pub fn vision_node(config: &RoverConfig, setup: &SensorSetup) -> Result<VisionNode, NodeError> {
+    VisionNode::new(&setup.calibration, vision_options(config, setup))
+}
+
+/// The filter node (no checkpoint: the process runner adds its path).
+pub fn filter_node(config: &RoverConfig, setup: &SensorSetup) -> FilterNode {
+    FilterNode::new(FilterNodeOptions::from_vio(&vio_options(config, setup)))
+}
+
+/// The calibration of the images vision publishes its disparity for (rectified as
+/// [`VisionNode`] does), without building a vision node and its SGM matcher.
+pub fn rectified_calibration(setup: &SensorSetup) -> Result<StereoCalibration, vision::RectifyError> {
+    if setup.calibration.rectified {
+        return Ok(setup.calibration);
+    }
+    Ok(vision::Rectifier::new(&setup.calibration)?.rectified_calibration())
+}
+
+/// The mapper's configuration: the robot's protocol id, the rectified head, `[mapper]`.
+pub fn mapper_config(config: &RoverConfig, rectified: StereoCalibration) -> MapperConfig {
+    let mut mapper = MapperConfig::new(protocol_robot_id(config.robot.id), rectified);
+    mapper.policy = mapper::submap::SubmapPolicy {
+        max_position_sigma_m: config.mapper.max_position_sigma_m,
+        max_distance_m: config.mapper.submap_max_distance_m,
+    };
+    if let Some(limit_m) = config.mapper.max_depth_error_m {
+        mapper.integrator.max_depth_error_m = limit_m;
+    }
+    mapper
+}

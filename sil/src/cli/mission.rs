@@ -1,0 +1,216 @@
+//! `sil mission --robots 2 --scenario moon --duration 120 --out runs/demo [--runner lockstep|process] [--json]`
+//!
+//! The project's main job: a simulated multi-robot exploration with every robot's full on-board
+//! stack (see [`crate::mission`]). Prints a summary table, or with `--json` the report object.
+//! Exit codes: 0 success, 1 runtime error, 2 usage error.
+
+use std::ffi::OsString;
+use std::process::ExitCode;
+
+use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
+
+const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--duration S] [--out DIR]
+                       [--runner lockstep|process] [--json] [options]
+
+  --robots N             rovers in the team (default 2)
+  --scenario NAME        simulated site: moon or mars (default moon)
+  --duration S           simulated seconds (default 120)
+  --seed N               world and sensor noise seed (default 1)
+  --downscale K          camera resolution 1024x508 / K, K in 1, 2, 4 (default 4)
+  --out DIR              output folder (default runs/demo): per robot robotN/ with
+                         estimate.tum, truth.tum, graph.g2o, map.ply, map.bt, map.png;
+                         report.json and report.md
+  --runner R             lockstep (all robots in this process, simulated time, deterministic;
+                         default) or process (one OS process per component over iceoryx2,
+                         fixed-rate tasks on the wall clock)
+  --radio R              serial (57.6 kbit/s radio, default) or wifi (lossy mesh)
+  --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
+                         ground truth with the thesis's noise models: a TEST-ONLY source until the
+                         robots' own detector and matcher exist; reports say so; lockstep runner only
+  --feed ADDR            the ground station's UDP address (e.g. 127.0.0.1:7700): the robots' ground
+                         links (telemetry v2, poses, constraints, submaps) go there from one socket,
+                         and what it sends back (acks, commands) reaches the addressed robot;
+                         without it an in-process stand-in acknowledges. Either way the ground
+                         traffic is recorded in OUT/ground_feed.log (groundstation --replay OUT)
+  --ground-key FILE      key file (hex, owner-only permissions) authenticating ground commands on
+                         every robot; without it every command is refused
+  --ground-delay-ms MS   one-way delay of the emulated ground link, process runner (default 1000)
+  --ground-loss P        probability that the emulated ground link loses a packet, each way
+                         (process runner, default 0)
+  --ground-outage A-B    the emulated ground link carries nothing from A to B seconds of mission
+                         time (process runner; repeatable)
+  --kill [R:]P@S         fault injection (process runner): SIGKILL to process P (driver, vision,
+                         filter, mapper, comms) of robot index R (folder robotR/, default 0) at
+                         S seconds of mission time; repeatable; recorded in faults.json
+  --json                 print the report as one JSON object instead of the summary";
+
+/// `A-B` in seconds → `[A, B)` in ms.
+fn parse_outage(text: &str) -> Result<(u64, u64), String> {
+    let bad = || format!("--ground-outage: expected START-END seconds with START < END, got {text:?}");
+    let (a, b) = text.split_once('-').ok_or_else(bad)?;
+    let seconds = |v: &str| v.trim().parse::<f64>().ok().filter(|s| s.is_finite() && (0.0..=1e6).contains(s));
+    match (seconds(a), seconds(b)) {
+        (Some(a), Some(b)) if a < b => Ok(((a * 1e3).round() as u64, (b * 1e3).round() as u64)),
+        _ => Err(bad()),
+    }
+}
+
+fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, String> {
+    use lexopt::prelude::*;
+    let mut parser = lexopt::Parser::from_args(args);
+    let mut options = MissionOptions::default();
+    let mut json = false;
+    let text = |parser: &mut lexopt::Parser, name: &str| -> Result<String, String> {
+        let value = parser.value().map_err(|e| e.to_string())?;
+        value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
+    };
+    while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
+        match arg {
+            Long("robots") => {
+                let v = text(&mut parser, "--robots")?;
+                options.robots = match v.parse::<usize>() {
+                    Ok(n) if (1..=8).contains(&n) => n,
+                    _ => return Err(format!("--robots: expected 1 to 8, got {v:?}")),
+                };
+            }
+            Long("scenario") => options.scenario = text(&mut parser, "--scenario")?,
+            Long("duration") => {
+                let v = text(&mut parser, "--duration")?;
+                options.duration_s = match v.parse::<f64>() {
+                    Ok(s) if s.is_finite() && s >= 5.0 => s,
+                    _ => return Err(format!("--duration: expected at least 5 seconds, got {v:?}")),
+                };
+            }
+            Long("seed") => {
+                let v = text(&mut parser, "--seed")?;
+                options.seed = v.parse().map_err(|_| format!("--seed: expected an integer, got {v:?}"))?;
+            }
+            Long("downscale") => {
+                let v = text(&mut parser, "--downscale")?;
+                options.downscale = match v.as_str() {
+                    "1" => 1,
+                    "2" => 2,
+                    "4" => 4,
+                    _ => return Err(format!("--downscale: expected 1, 2 or 4, got {v:?}")),
+                };
+            }
+            Long("out") => options.out = parser.value().map_err(|e| e.to_string())?.into(),
+            Long("runner") => {
+                options.runner = match text(&mut parser, "--runner")?.as_str() {
+                    "lockstep" => Runner::Lockstep,
+                    "process" => Runner::Process,
+                    other => return Err(format!("--runner: expected lockstep or process, got {other:?}")),
+                };
+            }
+            Long("radio") => {
+                options.radio = match text(&mut parser, "--radio")?.as_str() {
+                    "serial" => RadioPreset::SerialRadio,
+                    "wifi" => RadioPreset::Wifi,
+                    other => return Err(format!("--radio: expected serial or wifi, got {other:?}")),
+                };
+            }
+            Long("truth-loop-closures") => options.truth_loop_closures = true,
+            Long("feed") => {
+                let v = text(&mut parser, "--feed")?;
+                let v = v.strip_prefix("udp://").unwrap_or(&v);
+                options.feed = Some(v.parse().map_err(|_| format!("--feed: expected HOST:PORT, got {v:?}"))?);
+            }
+            Long("kill") => {
+                let v = text(&mut parser, "--kill")?;
+                options.faults.push(v.parse().map_err(|e| format!("--kill: {e}"))?);
+            }
+            Long("ground-key") => options.ground_key = Some(parser.value().map_err(|e| e.to_string())?.into()),
+            Long("ground-delay-ms") => {
+                let v = text(&mut parser, "--ground-delay-ms")?;
+                options.ground_link.delay_ms = match v.parse::<u64>() {
+                    Ok(ms) if ms <= 60_000 => ms,
+                    _ => return Err(format!("--ground-delay-ms: expected 0 to 60000, got {v:?}")),
+                };
+            }
+            Long("ground-loss") => {
+                let v = text(&mut parser, "--ground-loss")?;
+                options.ground_link.loss = match v.parse::<f64>() {
+                    Ok(p) if (0.0..1.0).contains(&p) => p,
+                    _ => return Err(format!("--ground-loss: expected a probability in [0, 1), got {v:?}")),
+                };
+            }
+            Long("ground-outage") => {
+                let v = text(&mut parser, "--ground-outage")?;
+                options.ground_link.outages_ms.push(parse_outage(&v)?);
+            }
+            Long("json") => json = true,
+            Long("help") | Short('h') => return Ok(None),
+            other => return Err(other.unexpected().to_string()),
+        }
+    }
+    if !matches!(options.scenario.as_str(), "moon" | "mars") {
+        return Err(format!("--scenario: expected moon or mars, got {:?}", options.scenario));
+    }
+    if options.truth_loop_closures && options.runner == Runner::Process {
+        return Err(
+            "--truth-loop-closures needs --runner lockstep (the process runner has no loop-closure source)".into()
+        );
+    }
+    if !options.faults.is_empty() && options.runner != Runner::Process {
+        return Err("--kill needs --runner process".to_owned());
+    }
+    if let Some(fault) = options.faults.iter().find(|f| f.robot >= options.robots) {
+        return Err(format!("--kill: robot index {} of {} robots", fault.robot, options.robots));
+    }
+    Ok(Some((options, json)))
+}
+
+pub fn main(args: Vec<OsString>) -> ExitCode {
+    let run = |(options, _json): &(MissionOptions, bool)| -> Result<MissionReport, String> {
+        crate::mission::run(options).map_err(|e| e.to_string())
+    };
+    let ((options, json), report) = match onboard::cli::parse_and_run("sil", "mission", USAGE, args, parse_args, run) {
+        Ok(done) => done,
+        Err(code) => return code,
+    };
+    if json {
+        println!("{}", report.to_json());
+    } else {
+        print!("{}", report.summary());
+        println!("outputs in {}", options.out.display());
+    }
+    ExitCode::SUCCESS
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn outages_are_start_end_seconds() {
+        assert_eq!(parse_outage("30-45"), Ok((30_000, 45_000)));
+        assert_eq!(parse_outage(" 0.5 - 2.25"), Ok((500, 2_250)));
+        for bad in ["", "30", "45-30", "30-30", "-5", "a-b", "1-inf", "1-NaN", "-1-4"] {
+            assert!(parse_outage(bad).unwrap_err().contains("--ground-outage"), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn ground_link_options_reach_the_mission_options() {
+        let args = ["--ground-delay-ms", "2000", "--ground-loss", "0.2", "--ground-outage", "10-20"];
+        let (options, _) = parse_args(args.iter().map(OsString::from).collect()).unwrap().unwrap();
+        assert_eq!(options.ground_link.delay_ms, 2_000);
+        assert_eq!(options.ground_link.loss, 0.2);
+        assert_eq!(options.ground_link.outages_ms, vec![(10_000, 20_000)]);
+        for bad in [["--ground-loss", "1.0"], ["--ground-loss", "-0.1"], ["--ground-outage", "5"]] {
+            assert!(parse_args(bad.iter().map(OsString::from).collect()).is_err(), "{bad:?}");
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn any_outage_text_parses_or_is_refused(text in "\\PC{0,24}") {
+            if let Ok((start_ms, end_ms)) = parse_outage(&text) {
+                prop_assert!(start_ms <= end_ms && end_ms <= 1_000_000_000, "{start_ms}-{end_ms}");
+            }
+        }
+    }
+}

@@ -1,0 +1,4 @@
+//! Command-line front ends of the `sil` subcommands.
+
+pub mod mission;
+pub mod vio;

@@ -1,0 +1,244 @@
+//! The mission on the lockstep runner: every robot's driver, vision, filter, mapper and comms
+//! nodes in this process on simulated time, the radios between robots as link emulators.
+//!
+//! Time advances in IMU periods (5 ms). Per step and robot: the driver publishes the sensor data
+//! due, every message is delivered through the robot's [`LocalBus`]; the mapper's task runs at
+//! 10 Hz and the comms task at 50 Hz of sensor time; then every radio moves the packets that
+//! arrived. Deterministic for a seed: no thread, clock or hash order decides anything (with a
+//! `--feed` ground station, what it sends back is of course its own).
+//!
+//! Ground link: every robot's comms has one ([`GROUND_LINK`], rate
+//! [`GROUND_RATE_BYTES_PER_S`]); per step its packets go to the [`GroundEnd`] (the ground station
+//! at `--feed`, or the in-process stand-in), and what the ground sends back (acks, commands) is
+//! read without waiting and handed to the addressed robot's ground link. Everything is recorded
+//! in `out/ground_feed.log`. No link delay is emulated here: simulated time runs at the
+//! machine's pace, not the wall clock's.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Instant;
+
+use hal::emulator::{DuplexEmulator, EmulatorConfig};
+use onboard::lockstep::{NODE_NAMES, OwnedMessage, RobotStack, STEP_NS};
+use onboard::nodes::Topic;
+use onboard::nodes::comms::{CommsConfig, CommsNode, GROUND_RATE_BYTES_PER_S, LinkConfig, LinkId, step_duplex};
+use onboard::sensors::sensor_setup;
+use protocol::{NodeId, RobotId};
+use sim::driver::SimSensorSource;
+use sim::world::World;
+
+use super::report::{MissionReport, ProcessReport, RobotReport};
+use super::world::{mission_world, robot_config, robot_id, truth_at_captures, truth_in_own_frame};
+use super::{MissionError, MissionOptions, RadioPreset, write_outputs};
+use crate::ground_end::GroundEnd;
+use crate::truth_closures::TruthLoopClosures;
+
+/// Ground link id on every robot; team links are `LinkId(1 + peer index)`.
+pub const GROUND_LINK: LinkId = LinkId(0);
+/// The recording of the ground link in the output folder (`hal::feedlog`).
+pub const GROUND_FEED_LOG: &str = "ground_feed.log";
+
+/// One robot of the lockstep mission: the firmware's stack and its index.
+#[derive(Debug)]
+pub struct MissionRobot {
+    pub robot: usize,
+    pub stack: RobotStack,
+}
+
+fn self_robot(robot: usize) -> String {
+    format!("robot {robot}")
+}
+
+fn radio_config(preset: RadioPreset) -> EmulatorConfig {
+    match preset {
+        RadioPreset::SerialRadio => EmulatorConfig::serial_radio_57k6(),
+        RadioPreset::Wifi => EmulatorConfig::lossy_wifi(),
+    }
+}
+
+/// Builds robot `robot`'s stack from its mission configuration (the one the process runner
+/// writes to its `rover.toml`); its mapper keeps its state under `out/robotN/state`.
+pub fn robot_stack(
+    world: &Arc<World>,
+    robot: usize,
+    options: &MissionOptions,
+    out: &Path,
+) -> Result<MissionRobot, MissionError> {
+    let node_error = |e| MissionError::Node(self_robot(robot), e);
+    let config = robot_config(options, world, robot)?;
+    let setup = sensor_setup(&config).map_err(|e| MissionError::Setup(format!("robot {robot}: {e}")))?;
+    let source = SimSensorSource::new(Arc::clone(world), robot)
+        .map_err(|e| MissionError::World(format!("robot {robot} sensors: {e}")))?;
+    let radio = radio_config(options.radio);
+    let mut links = Vec::new();
+    for peer in (0..options.robots).filter(|&p| p != robot) {
+        let peer_id = RobotId(robot_id(peer) as u8);
+        links.push(LinkConfig::team(
+            LinkId(1 + peer as u8),
+            &format!("radio to robot {peer}"),
+            radio.framing,
+            radio.bandwidth_bytes_per_s,
+            vec![peer_id],
+        ));
+    }
+    links.push(LinkConfig::ground(GROUND_LINK, hal_datagram(), GROUND_RATE_BYTES_PER_S));
+    let mut comms_config = CommsConfig::new(RobotId(robot_id(robot) as u8), links);
+    comms_config.boot_id = robot_id(robot).into();
+    if let Some(key) = &options.ground_key {
+        comms_config =
+            comms_config.with_key_file(key).map_err(|e| MissionError::Setup(format!("--ground-key: {e}")))?;
+    }
+    let comms = CommsNode::new(comms_config).map_err(|e| MissionError::Setup(format!("robot {robot} comms: {e}")))?;
+    let state_dir = out.join(format!("robot{robot}")).join("state");
+    let stack =
+        RobotStack::new(&config, &setup, Box::new(source), Some(comms), Some(state_dir)).map_err(|e| match e {
+            onboard::lockstep::StackError::Node(e) => node_error(e),
+            onboard::lockstep::StackError::Setup(e) => MissionError::Setup(format!("robot {robot}: {e}")),
+        })?;
+    Ok(MissionRobot { robot, stack })
+}
+
+fn comms(stack: &mut RobotStack) -> Result<&mut CommsNode, MissionError> {
+    stack.comms.as_mut().ok_or_else(|| MissionError::Setup("a mission robot without comms".into()))
+}
+
+fn hal_datagram() -> protocol::frame::Framing {
+    // One UDP datagram per packet, below the usual 1280-byte IPv6 minimum MTU.
+    protocol::frame::Framing::Datagram { mtu: 1200 }
+}
+
+/// Moves one step's ground traffic: what the ground sent back first (it may free window room),
+/// then what each robot may send now.
+fn step_ground(ground: &mut GroundEnd, robots: &mut [MissionRobot], now_ns: u64) -> Result<(), MissionError> {
+    while let Some((node, packet)) = ground.poll_uplink(now_ns) {
+        if let Some(r) = robots.iter_mut().find(|r| robot_id(r.robot) == u16::from(node.0)) {
+            comms(&mut r.stack)?.handle_packet(now_ns, GROUND_LINK, packet);
+        }
+    }
+    for r in robots.iter_mut() {
+        let node = NodeId(robot_id(r.robot) as u8);
+        let comms = comms(&mut r.stack)?;
+        while let Some(packet) = comms.poll_transmit_on(now_ns, GROUND_LINK) {
+            ground.downlink(now_ns, node, packet);
+        }
+    }
+    Ok(())
+}
+
+/// Runs the mission of `options` on the lockstep runner and writes its outputs.
+pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
+    let wall = Instant::now();
+    let out = &options.out;
+    std::fs::create_dir_all(out).map_err(|e| MissionError::Io { path: out.clone(), source: e })?;
+    // A fresh mission: the mappers must not restore the journal of an earlier run in this folder.
+    for robot in 0..options.robots {
+        let state = out.join(format!("robot{robot}")).join("state");
+        if state.exists() {
+            std::fs::remove_dir_all(&state).map_err(|e| MissionError::Io { path: state.clone(), source: e })?;
+        }
+    }
+    let world = mission_world(options)?;
+    let mut robots =
+        (0..options.robots).map(|r| robot_stack(&world, r, options, out)).collect::<Result<Vec<_>, _>>()?;
+    let radio = radio_config(options.radio);
+    let mut radios: BTreeMap<(usize, usize), DuplexEmulator> = BTreeMap::new();
+    for a in 0..options.robots {
+        for b in a + 1..options.robots {
+            let seed = options.seed.wrapping_mul(1_000_003).wrapping_add((a * 64 + b) as u64);
+            radios.insert((a, b), DuplexEmulator::symmetric(radio.clone().with_seed(seed)));
+        }
+    }
+    let nodes: Vec<NodeId> = (0..options.robots).map(|r| NodeId(robot_id(r) as u8)).collect();
+    let mut ground = GroundEnd::new(options.feed, &nodes, Some(&out.join(GROUND_FEED_LOG)))
+        .map_err(|e| MissionError::Setup(e.to_string()))?;
+    let mut truth = options.truth_loop_closures.then(|| TruthLoopClosures::new(&world, options.robots));
+    if truth.is_some() {
+        for r in &mut robots {
+            r.stack.bus.tap(&[Topic::FrameSwitch]);
+        }
+    }
+    let camera_period_ns = (1e9 / world.scenario.camera_rate_hz).round() as u64;
+    let end_ns = (options.duration_s * 1e9) as u64;
+    let mut now_ns = 0;
+    while now_ns <= end_ns {
+        for r in &mut robots {
+            r.stack.step(now_ns).map_err(|e| MissionError::Node(self_robot(r.robot), e))?;
+        }
+        if let Some(truth) = &mut truth {
+            for r in &mut robots {
+                for message in r.stack.bus.take_tapped() {
+                    if let OwnedMessage::FrameSwitch(s) = message {
+                        truth.on_frame_switch(r.robot, s.stamp_ns);
+                    }
+                }
+                if let Some(init) = r.stack.filter.summary().initialized_ns {
+                    truth.on_initialized(r.robot, init);
+                }
+                if now_ns.is_multiple_of(camera_period_ns) {
+                    truth.detect(r.robot, now_ns, &mut r.stack.mapper, &mut r.stack.bus)?;
+                }
+            }
+            if truth.match_due(now_ns) {
+                for r in &mut robots {
+                    truth.match_for(r.robot, &mut r.stack.mapper, &mut r.stack.bus)?;
+                }
+                truth.matched();
+            }
+            for r in &mut robots {
+                r.stack.deliver().map_err(|e| MissionError::Node(self_robot(r.robot), e))?;
+            }
+        }
+        for (&(a, b), duplex) in &mut radios {
+            let (left, right) = robots.split_at_mut(b);
+            let (ra, rb) = (comms(&mut left[a].stack)?, comms(&mut right[0].stack)?);
+            step_duplex(duplex, now_ns, (ra, LinkId(1 + b as u8)), (rb, LinkId(1 + a as u8)));
+        }
+        step_ground(&mut ground, &mut robots, now_ns)?;
+        now_ns += STEP_NS;
+    }
+    let mut robot_reports = Vec::new();
+    let mut processes = Vec::new();
+    for r in &mut robots {
+        let robot = r.robot;
+        r.stack.finish(end_ns).map_err(|e| MissionError::Node(self_robot(robot), e))?;
+        let stack = &mut r.stack;
+        let summary = stack.filter.summary();
+        let estimate = stack.mapper.online_trajectory().to_vec();
+        let truth = summary
+            .initialized_ns
+            .and_then(|init| truth_in_own_frame(&world, robot, init, &truth_at_captures(&world, robot)));
+        let robot_dir = out.join(format!("robot{robot}"));
+        let written = write_outputs(&robot_dir, &mut stack.mapper, &estimate, truth.as_deref())?;
+        let comms = comms(stack)?.stats();
+        robot_reports.push(RobotReport {
+            robot: robot_id(robot),
+            score: written.score,
+            score_error: written.score_error,
+            graph_nodes: written.graph_nodes,
+            graph_factors: written.graph_factors,
+            connected: written.connected,
+            submaps_finished: written.submaps_finished,
+            submaps_received: written.submaps_received,
+            imu_received: summary.imu_received,
+            imu_lost: summary.imu_lost,
+            bytes_sent_by_class: comms.sent_by_class.iter().map(|(k, v)| ((*k).to_owned(), v.wire_bytes)).collect(),
+        });
+        for (name, seconds) in NODE_NAMES.iter().zip(&stack.times.seconds) {
+            processes.push(ProcessReport::lockstep(robot_id(robot), name, *seconds));
+        }
+    }
+    ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
+    let report = MissionReport {
+        runner: "lockstep".to_owned(),
+        scenario: options.scenario.clone(),
+        seed: options.seed,
+        duration_s: options.duration_s,
+        wall_s: wall.elapsed().as_secs_f64(),
+        truth_loop_closures: options.truth_loop_closures,
+        robots: robot_reports,
+        processes,
+    };
+    super::write_report(out, &report)?;
+    Ok(report)
+}

@@ -1,0 +1,77 @@
+//! The simulated site and team of a mission, each robot's firmware configuration, and the
+//! per-robot ground truth in the robot's own frame.
+
+use std::sync::Arc;
+
+use nalgebra::Isometry3;
+use onboard::config::RoverConfig;
+use sim::truth_constraints::{TruthConstraintConfig, TruthConstraints};
+use sim::world::World;
+
+use super::{MissionError, MissionOptions};
+use crate::sim_source::{SimDriverConfig, configure_sim_robot};
+
+/// The `[driver.sim]` world of `options`.
+pub fn sim_driver_config(options: &MissionOptions) -> SimDriverConfig {
+    SimDriverConfig {
+        scenario: options.scenario.clone(),
+        seed: options.seed,
+        robots: options.robots as u16,
+        downscale: options.downscale,
+        pause_s: None,
+    }
+}
+
+/// The world of `options`: the scenario preset with `robots` rovers on its start ring.
+pub fn mission_world(options: &MissionOptions) -> Result<Arc<World>, MissionError> {
+    sim_driver_config(options).world(options.duration_s).map_err(MissionError::World)
+}
+
+/// Robot `robot`'s firmware configuration in the mission: a simulated driver in the mission's
+/// world, the head's calibration and the IMU model from the scenario, the mission's submap
+/// length. Both runners build the robot's nodes from it (the process runner also gives it its
+/// links and real-time settings).
+pub fn robot_config(options: &MissionOptions, world: &World, robot: usize) -> Result<RoverConfig, MissionError> {
+    let mut config = RoverConfig::default();
+    config.robot.id = robot as u16;
+    config.robot.name = format!("robot{robot}");
+    configure_sim_robot(&mut config, &sim_driver_config(options), &world.scenario, options.duration_s)
+        .map_err(MissionError::Setup)?;
+    if let Some(distance_m) = options.submap_max_distance_m {
+        config.mapper.submap_max_distance_m = distance_m;
+    }
+    Ok(config)
+}
+
+/// Protocol robot id of robot index `robot` (protocol ids start at 1).
+pub fn robot_id(robot: usize) -> u16 {
+    onboard::stack::protocol_robot_id(robot as u16)
+}
+
+/// The capture stamps of the simulated cameras (on the IMU grid, as `sim::driver` fires them)
+/// and `t_world_body` of robot `robot` at each: the ground truth of every image.
+pub fn truth_at_captures(world: &World, robot: usize) -> Vec<(u64, Isometry3<f64>)> {
+    let s = &world.scenario;
+    let tick_ns = ((1e9 / s.imu_rate_hz).round() as u64).max(1);
+    let every = ((1e9 / s.camera_rate_hz / tick_ns as f64).round() as u64).max(1);
+    (0..)
+        .map(|k: u64| k * every * tick_ns)
+        .take_while(|&stamp| stamp < world.end_ns())
+        .filter_map(|stamp| Some((stamp, world.robot_state(robot, stamp)?.t_world_body)))
+        .collect()
+}
+
+/// `truth_world` (stamp, `t_world_body`) re-expressed in the robot's own frame: its filter's first
+/// local frame, which the filter put at the body's position with the body's yaw (gravity
+/// aligned) at `initialized_ns`. `None` if the world has no state at that stamp.
+pub fn truth_in_own_frame(
+    world: &Arc<World>,
+    robot: usize,
+    initialized_ns: u64,
+    truth_world: &[(u64, Isometry3<f64>)],
+) -> Option<Vec<(u64, Isometry3<f64>)>> {
+    let source = TruthConstraints::new(Arc::clone(world), TruthConstraintConfig::default());
+    let t_world_own = source.true_origin(robot, initialized_ns)?;
+    let t_own_world = t_world_own.inverse();
+    Some(truth_world.iter().filter(|(s, _)| *s >= initialized_ns).map(|(s, t)| (*s, t_own_world * t)).collect())
+}
