@@ -30,7 +30,7 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vect
 
 use crate::sensor::{
     CameraCalibration, Distortion, ImuSample, PanTiltHead, Pinhole, SensorError, SensorEvent, SensorSource,
-    StereoCalibration, StereoFrame, WheelOdomSample,
+    StereoCalibration, StereoFrame, StereoInfo, WheelOdomSample, check_stereo_buffers, no_pending_pair,
 };
 use csv::{CameraRow, PanTiltRow};
 use yaml::Yaml;
@@ -78,6 +78,8 @@ pub struct AslDataset {
     next_pair: usize,
     next_imu: usize,
     next_wheel: usize,
+    /// The pair announced by `next_event`, not read yet.
+    pending_pair: Option<usize>,
     /// The PNG file being decoded, reused so replay does not allocate per frame.
     file_bytes: Vec<u8>,
 }
@@ -384,6 +386,7 @@ impl AslDataset {
             next_pair: 0,
             next_imu: 0,
             next_wheel: 0,
+            pending_pair: None,
             file_bytes: Vec::new(),
         })
     }
@@ -424,6 +427,7 @@ impl AslDataset {
     /// Starts the replay again from the first event.
     pub fn rewind(&mut self) {
         (self.next_pair, self.next_imu, self.next_wheel) = (0, 0, 0);
+        self.pending_pair = None;
     }
 
     /// Decodes pair `index` into `frame`.
@@ -478,7 +482,8 @@ impl SensorSource for AslDataset {
         self.calibration
     }
 
-    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {
+    fn next_event(&mut self) -> Result<Option<SensorEvent>, SensorError> {
+        self.pending_pair = None;
         let imu = self.imu.get(self.next_imu).map(|s| s.stamp_ns);
         let wheel = self.wheel.get(self.next_wheel).map(|s| s.stamp_ns);
         let stereo = self.pairs.get(self.next_pair).map(|p| p.stamp_ns);
@@ -500,10 +505,30 @@ impl SensorSource for AslDataset {
             Some(_) => {
                 let index = self.next_pair;
                 self.next_pair += 1;
-                self.load_pair(index, frame)?;
-                Ok(Some(SensorEvent::Stereo))
+                let pair = &self.pairs[index];
+                let (width_px, height_px) = self.calibration.map_or((0, 0), |c| (c.left.width_px, c.left.height_px));
+                self.pending_pair = Some(index);
+                Ok(Some(SensorEvent::Stereo(StereoInfo {
+                    stamp_ns: pair.stamp_ns,
+                    sequence: pair.sequence,
+                    width_px,
+                    height_px,
+                    pan_rad: pair.pan_rad,
+                    tilt_rad: pair.tilt_rad,
+                })))
             }
         }
+    }
+
+    fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
+        let index = self.pending_pair.take().ok_or_else(no_pending_pair)?;
+        let (width, height) = self.calibration.map_or((0, 0), |c| (c.left.width_px, c.left.height_px));
+        let info =
+            StereoInfo { stamp_ns: 0, sequence: 0, width_px: width, height_px: height, pan_rad: 0.0, tilt_rad: 0.0 };
+        check_stereo_buffers(&info, left, right)?;
+        let pair = &self.pairs[index];
+        decode_grey_png(&pair.left, &mut self.file_bytes, width, height, left)?;
+        decode_grey_png(&pair.right, &mut self.file_bytes, width, height, right)
     }
 }
 

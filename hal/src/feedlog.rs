@@ -18,7 +18,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use crc::{CRC_32_ISO_HDLC, Crc};
+use protocol::crc::CRC32;
 
 /// The file's first bytes.
 pub const FEED_LOG_MAGIC: &[u8; 8] = b"RVFEED01";
@@ -26,7 +26,6 @@ pub const FEED_LOG_MAGIC: &[u8; 8] = b"RVFEED01";
 pub const MAX_FEED_PACKET_BYTES: usize = 64 * 1024;
 const PREFIX_BYTES: usize = 8 + 1 + 4;
 const CRC_BYTES: usize = 4;
-const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
 #[derive(Debug, thiserror::Error)]
 pub enum FeedLogError {

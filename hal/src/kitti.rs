@@ -26,7 +26,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
 use crate::sensor::{
     CameraCalibration, Distortion, Pinhole, SensorError, SensorEvent, SensorSource, StereoCalibration, StereoFrame,
-    r_flu_optical,
+    StereoInfo, check_stereo_buffers, no_pending_pair, r_flu_optical,
 };
 
 /// Frame spacing without `times.txt`.
@@ -178,6 +178,8 @@ pub struct KittiDataset {
     calibration: StereoCalibration,
     frames: Vec<KittiFrame>,
     next: usize,
+    /// The frame announced by `next_event`, not read yet.
+    pending: Option<usize>,
     /// The PNG file and its decoded pixels, reused so replay does not allocate per frame.
     file_bytes: Vec<u8>,
     pixels: Vec<u8>,
@@ -270,7 +272,7 @@ impl KittiDataset {
         };
         let right = CameraCalibration { t_body_cam: t_body_left * Translation3::new(baseline_m, 0.0, 0.0), ..left };
         let calibration = StereoCalibration { left, right, rectified: true, baseline_m, head: None };
-        Ok(KittiDataset { root, calibration, frames, next: 0, file_bytes, pixels: Vec::new() })
+        Ok(KittiDataset { root, calibration, frames, next: 0, pending: None, file_bytes, pixels: Vec::new() })
     }
 
     pub fn root(&self) -> &Path {
@@ -289,6 +291,19 @@ impl KittiDataset {
     /// Starts the replay again from the first pair.
     pub fn rewind(&mut self) {
         self.next = 0;
+        self.pending = None;
+    }
+
+    /// The announcement of pair `index`.
+    fn info(&self, index: usize, stamp_ns: u64) -> StereoInfo {
+        StereoInfo {
+            stamp_ns,
+            sequence: index as u64,
+            width_px: self.calibration.left.width_px,
+            height_px: self.calibration.left.height_px,
+            pan_rad: 0.0,
+            tilt_rad: 0.0,
+        }
     }
 
     /// Decodes pair `index` into `frame`.
@@ -373,13 +388,23 @@ impl SensorSource for KittiDataset {
         Some(self.calibration)
     }
 
-    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {
-        if self.next >= self.frames.len() {
+    fn next_event(&mut self) -> Result<Option<SensorEvent>, SensorError> {
+        self.pending = None;
+        let Some(frame) = self.frames.get(self.next) else {
             return Ok(None);
-        }
+        };
         let index = self.next;
         self.next += 1;
-        self.load_frame(index, frame)?;
-        Ok(Some(SensorEvent::Stereo))
+        self.pending = Some(index);
+        Ok(Some(SensorEvent::Stereo(self.info(index, frame.stamp_ns))))
+    }
+
+    fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
+        let index = self.pending.take().ok_or_else(no_pending_pair)?;
+        check_stereo_buffers(&self.info(index, 0), left, right)?;
+        let (width, height) = (self.calibration.left.width_px, self.calibration.left.height_px);
+        let pair = &self.frames[index];
+        decode_to_grey(&pair.left, &mut self.file_bytes, &mut self.pixels, width, height, left)?;
+        decode_to_grey(&pair.right, &mut self.file_bytes, &mut self.pixels, width, height, right)
     }
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use crate::asl::{AslDataset, ImuNoiseDensities};
 use crate::kitti::{self, KittiDataset};
-use crate::sensor::{SensorError, SensorEvent, SensorSource, StereoCalibration, StereoFrame};
+use crate::sensor::{SensorError, SensorEvent, SensorSource, StereoCalibration};
 
 /// The layouts a replay reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,10 +41,17 @@ impl SensorSource for DatasetSource {
         }
     }
 
-    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {
+    fn next_event(&mut self) -> Result<Option<SensorEvent>, SensorError> {
         match self {
-            DatasetSource::Asl(d) => d.next_event(frame),
-            DatasetSource::Kitti(d) => d.next_event(frame),
+            DatasetSource::Asl(d) => d.next_event(),
+            DatasetSource::Kitti(d) => d.next_event(),
+        }
+    }
+
+    fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
+        match self {
+            DatasetSource::Asl(d) => d.read_stereo(left, right),
+            DatasetSource::Kitti(d) => d.read_stereo(left, right),
         }
     }
 }

@@ -10,8 +10,10 @@
 //! - Timestamps are nanoseconds on the robot's clock (`stamp_ns`); a stereo frame's stamp is its
 //!   capture (mid-exposure) time.
 //!
-//! A [`SensorSource`] yields events in non-decreasing timestamp order and fills stereo images into
-//! a caller-owned [`StereoFrame`], so a driver running at 10 Hz never allocates per frame.
+//! A [`SensorSource`] yields events in non-decreasing timestamp order. A stereo pair is announced
+//! by its [`StereoInfo`] and its pixels are then written by [`SensorSource::read_stereo`] straight
+//! into memory the caller chooses (the driver: a loaned shared-memory sample), so the image is
+//! rendered or decoded once, where its readers read it, and nothing is allocated per frame.
 
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
@@ -137,6 +139,18 @@ pub struct StereoFrame {
 }
 
 impl StereoFrame {
+    /// The frame's metadata.
+    pub fn info(&self) -> StereoInfo {
+        StereoInfo {
+            stamp_ns: self.stamp_ns,
+            sequence: self.sequence,
+            width_px: self.width_px,
+            height_px: self.height_px,
+            pan_rad: self.pan_rad,
+            tilt_rad: self.tilt_rad,
+        }
+    }
+
     /// Resizes both images to `width × height` (keeping their allocation when it is big enough).
     pub fn resize(&mut self, width_px: u32, height_px: u32) {
         let len = width_px as usize * height_px as usize;
@@ -169,13 +183,45 @@ pub struct WheelOdomSample {
     pub sigma: [f64; 6],
 }
 
+/// A stereo pair announced by [`SensorSource::next_event`], before its pixels are read.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StereoInfo {
+    /// Capture (mid-exposure) time.
+    pub stamp_ns: u64,
+    /// Frame counter of the camera (gaps mean dropped frames).
+    pub sequence: u64,
+    pub width_px: u32,
+    pub height_px: u32,
+    /// Pan and tilt of the camera head at capture time (0 without a head).
+    pub pan_rad: f64,
+    pub tilt_rad: f64,
+}
+
+impl StereoInfo {
+    /// Pixels per image, `None` if the size overflows.
+    pub fn pixels(&self) -> Option<usize> {
+        usize::try_from(self.width_px).ok()?.checked_mul(usize::try_from(self.height_px).ok()?)
+    }
+}
+
 /// What [`SensorSource::next_event`] produced.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SensorEvent {
-    /// The caller's [`StereoFrame`] now holds a new pair.
-    Stereo,
+    /// A new pair; [`SensorSource::read_stereo`] writes its pixels.
+    Stereo(StereoInfo),
     Imu(ImuSample),
     WheelOdom(WheelOdomSample),
+}
+
+impl SensorEvent {
+    /// The event's time stamp.
+    pub fn stamp_ns(&self) -> u64 {
+        match self {
+            SensorEvent::Stereo(info) => info.stamp_ns,
+            SensorEvent::Imu(sample) => sample.stamp_ns,
+            SensorEvent::WheelOdom(sample) => sample.stamp_ns,
+        }
+    }
 }
 
 /// Why a sensor source failed. The end of a recording is `Ok(None)`, not an error.
@@ -201,8 +247,14 @@ pub trait SensorSource {
     fn stereo_calibration(&self) -> Option<StereoCalibration>;
 
     /// The next event in timestamp order, or `Ok(None)` when the source is exhausted. A stereo
-    /// pair is written into `frame` (resized as needed) and announced as [`SensorEvent::Stereo`].
-    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError>;
+    /// pair is announced as [`SensorEvent::Stereo`]; its pixels come from [`Self::read_stereo`]
+    /// (a pair not read before the next call is skipped: nothing is rendered or decoded).
+    fn next_event(&mut self) -> Result<Option<SensorEvent>, SensorError>;
+
+    /// Writes the pixels of the pair announced last into `left` and `right` (row-major, each
+    /// exactly `width × height` of its [`StereoInfo`]). An error if no pair is pending or a
+    /// buffer has another size.
+    fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError>;
 }
 
 impl<S: SensorSource + ?Sized> SensorSource for Box<S> {
@@ -210,7 +262,60 @@ impl<S: SensorSource + ?Sized> SensorSource for Box<S> {
         (**self).stereo_calibration()
     }
 
-    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {
-        (**self).next_event(frame)
+    fn next_event(&mut self) -> Result<Option<SensorEvent>, SensorError> {
+        (**self).next_event()
     }
+
+    fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
+        (**self).read_stereo(left, right)
+    }
+}
+
+/// Reads the announced pair `info` into `frame` (resized as needed, metadata set): for consumers
+/// that keep frames of their own.
+pub fn read_stereo_frame<S: SensorSource + ?Sized>(
+    source: &mut S,
+    info: &StereoInfo,
+    frame: &mut StereoFrame,
+) -> Result<(), SensorError> {
+    frame.resize(info.width_px, info.height_px);
+    source.read_stereo(&mut frame.left, &mut frame.right)?;
+    frame.stamp_ns = info.stamp_ns;
+    frame.sequence = info.sequence;
+    frame.pan_rad = info.pan_rad;
+    frame.tilt_rad = info.tilt_rad;
+    Ok(())
+}
+
+/// The next event of `source`, with a stereo pair read into `frame` straight away: for consumers
+/// that keep every frame of their own (tests, offline tools).
+pub fn next_event_with_frame<S: SensorSource + ?Sized>(
+    source: &mut S,
+    frame: &mut StereoFrame,
+) -> Result<Option<SensorEvent>, SensorError> {
+    let event = source.next_event()?;
+    if let Some(SensorEvent::Stereo(info)) = &event {
+        read_stereo_frame(source, info, frame)?;
+    }
+    Ok(event)
+}
+
+/// The check every source makes before writing a pair: both buffers of the announced size.
+pub fn check_stereo_buffers(info: &StereoInfo, left: &[u8], right: &[u8]) -> Result<(), SensorError> {
+    let n = info.pixels();
+    if n != Some(left.len()) || n != Some(right.len()) {
+        return Err(SensorError::Source(format!(
+            "stereo buffers of {} and {} bytes for a {}x{} pair",
+            left.len(),
+            right.len(),
+            info.width_px,
+            info.height_px
+        )));
+    }
+    Ok(())
+}
+
+/// The error of a [`SensorSource::read_stereo`] call with no pair announced.
+pub fn no_pending_pair() -> SensorError {
+    SensorError::Source("read_stereo: no stereo pair was announced".into())
 }

@@ -52,11 +52,11 @@ fn write_png(path: &Path, width: u32, height: u32, pixels: &[u8]) {
 fn drain(source: &mut AslDataset) -> (Vec<(char, u64)>, Vec<u64>) {
     let mut frame = StereoFrame::default();
     let (mut events, mut sequences) = (Vec::new(), Vec::new());
-    while let Some(event) = source.next_event(&mut frame).unwrap() {
+    while let Some(event) = hal::sensor::next_event_with_frame(source, &mut frame).unwrap() {
         events.push(match event {
             SensorEvent::Imu(s) => ('i', s.stamp_ns),
             SensorEvent::WheelOdom(s) => ('w', s.stamp_ns),
-            SensorEvent::Stereo => {
+            SensorEvent::Stereo(_) => {
                 sequences.push(frame.sequence);
                 ('s', frame.stamp_ns)
             }
@@ -244,14 +244,14 @@ fn pairs_by_equal_stamps_and_merges_ties_imu_wheel_stereo() {
 
     let mut frame = StereoFrame::default();
     let mut seen = Vec::new();
-    while let Some(event) = dataset.next_event(&mut frame).unwrap() {
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut dataset, &mut frame).unwrap() {
         match event {
             SensorEvent::Imu(s) => seen.push(format!("imu{}", s.stamp_ns)),
             SensorEvent::WheelOdom(s) => {
                 assert_eq!(s.sigma, [0.01, 0.01, 0.01, 0.02, 0.02, 0.02]);
                 seen.push(format!("wheel{}", s.stamp_ns));
             }
-            SensorEvent::Stereo => {
+            SensorEvent::Stereo(_) => {
                 assert_eq!(frame.left, vec![(frame.stamp_ns % 251) as u8; 8]);
                 let angles = if frame.stamp_ns == 3 { (0.25, 0.5) } else { (0.0, 0.0) };
                 assert_eq!((frame.pan_rad, frame.tilt_rad), angles);

@@ -47,8 +47,8 @@ fn straight_drive_calibration_stamps_and_images() {
     assert_eq!(dataset.frames().len(), 51);
     let mut frame = StereoFrame::default();
     let mut stamps = Vec::new();
-    while let Some(event) = dataset.next_event(&mut frame).unwrap() {
-        assert_eq!(event, SensorEvent::Stereo);
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut dataset, &mut frame).unwrap() {
+        assert!(matches!(event, SensorEvent::Stereo(_)));
         assert_eq!(frame.left.len(), 1226 * 370);
         stamps.push(frame.stamp_ns);
     }
@@ -59,7 +59,10 @@ fn straight_drive_calibration_stamps_and_images() {
     assert!((30.0..220.0).contains(&mean), "{mean}");
     assert_ne!(frame.left, frame.right);
     dataset.rewind();
-    assert_eq!(dataset.next_event(&mut frame).unwrap(), Some(SensorEvent::Stereo));
+    assert!(matches!(
+        hal::sensor::next_event_with_frame(&mut dataset, &mut frame).unwrap(),
+        Some(SensorEvent::Stereo(_))
+    ));
     assert_eq!(frame.stamp_ns, 0);
 }
 
@@ -93,13 +96,13 @@ fn labelled_calibration_times_and_rgb_images() {
     let calibration = dataset.stereo_calibration().unwrap();
     assert!((calibration.baseline_m - 0.12).abs() < 1e-12);
     let mut frame = StereoFrame::default();
-    dataset.next_event(&mut frame).unwrap().unwrap();
+    hal::sensor::next_event_with_frame(&mut dataset, &mut frame).unwrap().unwrap();
     assert_eq!(&frame.left[..3], &[76, 150, 29]);
     assert_eq!(frame.right, grey);
-    dataset.next_event(&mut frame).unwrap().unwrap();
+    hal::sensor::next_event_with_frame(&mut dataset, &mut frame).unwrap().unwrap();
     assert_eq!(frame.stamp_ns, 103_600_000);
     assert_eq!(frame.sequence, 1);
-    assert!(dataset.next_event(&mut frame).unwrap().is_none());
+    assert!(hal::sensor::next_event_with_frame(&mut dataset, &mut frame).unwrap().is_none());
 
     // A times file that does not match the images is refused.
     fs::write(dir.join("times.txt"), "0.0\n").unwrap();
@@ -142,7 +145,8 @@ fn missing_and_broken_inputs_give_clear_errors() {
     // A right image of another size fails when the pair is read, naming the file.
     write_png(&dir.join("image_r/000000.png"), 3, 2, png::ColorType::Grayscale, &[0; 6]);
     let mut dataset = KittiDataset::open(&dir).unwrap();
-    let wrong_size = dataset.next_event(&mut StereoFrame::default()).unwrap_err().to_string();
+    let wrong_size =
+        hal::sensor::next_event_with_frame(&mut dataset, &mut StereoFrame::default()).unwrap_err().to_string();
     assert!(wrong_size.contains("000000.png") && wrong_size.contains("3×2"), "{wrong_size}");
     fs::remove_dir_all(&dir).unwrap();
 }

@@ -132,7 +132,7 @@ pub struct MarkerMsg {
 /// `filter/state`: the local reference filter's estimate after one IMU sample.
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
 #[repr(C)]
-#[type_name("rover.FilterState.v1")]
+#[type_name("rover.FilterState.v2")]
 pub struct FilterStateMsg {
     pub stamp_ns: u64,
     /// Body pose in the current local frame.
@@ -149,11 +149,16 @@ pub struct FilterStateMsg {
     pub frame_id: u32,
     /// [`FilterStateMsg::INITIALIZING`] or [`FilterStateMsg::RUNNING`].
     pub status: u32,
+    /// Capture stamp of the last visual-odometry result the filter applied
+    /// ([`FilterStateMsg::NEVER`]: none yet).
+    pub last_vo_capture_ns: u64,
 }
 
 impl FilterStateMsg {
     pub const INITIALIZING: u32 = 0;
     pub const RUNNING: u32 = 1;
+    /// A stamp that has not happened.
+    pub const NEVER: u64 = u64::MAX;
 }
 
 /// `mapper/frame_switch_request`: the mapper asks the filter to start a new local frame.
@@ -217,7 +222,7 @@ pub enum ProcessKind {
 /// `telemetry/tasks`: one fixed-rate task's counters, published about once a second.
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
 #[repr(C)]
-#[type_name("rover.TaskStats.v1")]
+#[type_name("rover.TaskStats.v2")]
 pub struct TaskStatsMsg {
     pub stamp_ns: u64,
     pub period_ns: u64,
@@ -240,4 +245,16 @@ pub struct TaskStatsMsg {
     pub process: u32,
     /// Index of the task within its process.
     pub task: u32,
+    /// The fullest receive queue of the process since the last report: the topic's recording
+    /// code (0: none), the most messages waiting in it at once, and its capacity (0: unbounded).
+    pub queue_topic: u32,
+    pub queue_depth_max: u32,
+    pub queue_capacity: u32,
+    pub reserved: u32,
+}
+
+impl TaskStatsMsg {
+    /// `period_ns` of a report from a node without a fixed-rate task (the lockstep runner): its
+    /// timing fields mean nothing, its CPU and memory are measured.
+    pub const NO_TASK: u64 = 0;
 }

@@ -25,6 +25,7 @@
 
 pub mod auth;
 pub mod codec;
+pub mod crc;
 pub mod delivery;
 pub mod frame;
 pub mod geometry;

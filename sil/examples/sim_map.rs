@@ -18,8 +18,9 @@ use fpga_model::fast::Matcher;
 use fpga_model::{DisparityImage, GrayImage};
 use mapper::global::{Composition, GlobalMap, GlobalMapConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
+use mapper::slam::{FramePose, PoseBuffer, SameStamp};
 use mapper::submap::{SubmapPolicy, Submapper};
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Translation3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Vector3};
 use onboard::lockstep::{OwnedMessage, RobotStack, STEP_NS};
 use onboard::nodes::Topic;
 use sim::driver::SimSensorSource;
@@ -140,19 +141,6 @@ struct Pending {
     t_world_cam_true: Isometry3<f64>,
 }
 
-/// The pose at `stamp_ns` interpolated in a stamped trajectory (None outside it).
-fn interpolate(stamps_ns: &[u64], poses: &[Isometry3<f64>], stamp_ns: u64) -> Option<Isometry3<f64>> {
-    let i = stamps_ns.partition_point(|&s| s < stamp_ns);
-    let (&s1, p1) = (stamps_ns.get(i)?, poses.get(i)?);
-    if s1 == stamp_ns {
-        return Some(*p1);
-    }
-    let (&s0, p0) = (stamps_ns.get(i.checked_sub(1)?)?, poses.get(i - 1)?);
-    let f = (stamp_ns - s0) as f64 / (s1 - s0) as f64;
-    let translation = p0.translation.vector.lerp(&p1.translation.vector, f);
-    Some(Isometry3::from_parts(Translation3::from(translation), p0.rotation.slerp(&p1.rotation, f)))
-}
-
 /// Map points within `radius_m` (horizontal) of the path, away from rocks.
 fn scored_points(
     composition: &Composition,
@@ -184,7 +172,7 @@ fn main() -> Result<(), BoxError> {
     let mut stack = RobotStack::new(&config, &setup, Box::new(source), None, None)?;
     stack.bus.tap(&[Topic::Stereo, Topic::FilterState, Topic::FrameSwitch]);
     // The filter's trajectory in its first local frame (chained across its frame switches).
-    let (mut stamps, mut poses): (Vec<u64>, Vec<Isometry3<f64>>) = (Vec::new(), Vec::new());
+    let mut trajectory: PoseBuffer<FramePose> = PoseBuffer::unbounded(SameStamp::KeepLatest);
     let mut t_first_local = Isometry3::identity();
     let geometry = StereoGeometry::from_calibration(&calibration);
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
@@ -219,12 +207,13 @@ fn main() -> Result<(), BoxError> {
                 }
                 OwnedMessage::FilterState(s) if s.status == msgs::FilterStateMsg::RUNNING => {
                     let pose = t_first_local * s.t_local_body.to_isometry().ok_or("bad state")?;
-                    if stamps.last() == Some(&s.stamp_ns) {
-                        *poses.last_mut().ok_or("no pose")? = pose;
-                    } else {
-                        stamps.push(s.stamp_ns);
-                        poses.push(pose);
-                    }
+                    // One chained frame: interpolation never stops at a switch.
+                    trajectory.insert(FramePose {
+                        stamp_ns: s.stamp_ns,
+                        frame_id: 0,
+                        pose,
+                        covariance: Matrix6::zeros(),
+                    });
                     continue;
                 }
                 OwnedMessage::Stereo(header, bytes) => (header, bytes),
@@ -260,16 +249,20 @@ fn main() -> Result<(), BoxError> {
         }
         // A frame is integrated once the filter's trajectory reaches its capture time.
         while let Some(front) = pending.front() {
-            let Some(&last_ns) = stamps.last() else { break };
+            let Some(last_ns) = trajectory.latest().map(|p| p.stamp_ns) else { break };
             if front.stamp_ns > last_ns {
                 break;
             }
             let Some(mut p) = pending.pop_front() else { break };
-            match interpolate(&stamps, &poses, p.stamp_ns) {
+            match trajectory.lookup(p.stamp_ns, u64::MAX).map(|s| s.pose) {
                 Some(t_first_body) => {
                     let t_world_first = *t_world_first.get_or_insert_with(|| {
-                        let first_truth = world.robot_state(0, stamps[0]).map(|g| g.t_world_body);
-                        first_truth.map_or_else(Isometry3::identity, |g| g * poses[0].inverse())
+                        let first = trajectory.range(0, u64::MAX).next();
+                        let first_truth = first.and_then(|f| world.robot_state(0, f.stamp_ns)).map(|g| g.t_world_body);
+                        match (first_truth, first) {
+                            (Some(g), Some(f)) => g * f.pose.inverse(),
+                            _ => Isometry3::identity(),
+                        }
                     });
                     let t_body_cam = p.t_world_body_true.inverse() * p.t_world_cam_true;
                     let t_world_body_est = t_world_first * t_first_body;
@@ -295,7 +288,7 @@ fn main() -> Result<(), BoxError> {
     stack.finish(now_ns)?;
     let summary = stack.filter.summary();
     let t_world_first = t_world_first.ok_or("the filter never produced a pose")?;
-    let (Some(&last_ns), Some(last_pose)) = (stamps.last(), poses.last()) else {
+    let Some((last_ns, last_pose)) = trajectory.latest().map(|p| (p.stamp_ns, p.pose)) else {
         return Err("no trajectory".into());
     };
     let last_true = world.robot_state(0, last_ns).ok_or("no ground truth")?.t_world_body;

@@ -20,7 +20,7 @@
 use std::sync::Arc;
 
 use hal::sensor::{SensorSource, StereoCalibration};
-use onboard::config::{CalibrationConfig, DriverKind, ImuNoiseConfig, RoverConfig};
+use onboard::config::{CalibrationConfig, DriverKind, ImuNoiseConfig, ModeConfig, RoverConfig};
 use onboard::sensors::{FirmwareSources, SensorSetupError, SourceProvider};
 use serde::{Deserialize, Serialize};
 use sim::driver::SimSensorSource;
@@ -130,6 +130,8 @@ pub fn configure_sim_robot(
     let robot = usize::from(config.robot.id);
     let calibration =
         sim_calibration(scenario, robot).ok_or_else(|| format!("robot {robot} is not in the scenario"))?;
+    // The simulated rovers drive their routes on their own.
+    config.robot.mode = ModeConfig::Autonomous;
     config.driver.kind = DriverKind::Sim;
     config.driver.replay_path = None;
     config.driver.duration_s = Some(duration_s);

@@ -19,8 +19,8 @@ use std::sync::Arc;
 
 use eval::metrics::Stats;
 use mapper::slam::{
-    self, AttemptOutcome, FilterPose, FrameSwitchMsg, GraphSize, MatchAttempt, Measurement, RobotDetection, RobotId,
-    SubmapId, SubmapMatch, TeamGraph, TeamGraphConfig, Topology,
+    self, AttemptOutcome, FilterPose, GraphSize, MatchAttempt, Measurement, RobotDetection, RobotId, SubmapId,
+    SubmapMatch, SubmapSwitch, TeamGraph, TeamGraphConfig, Topology,
 };
 use nalgebra::Isometry3;
 use sim::truth_constraints::{SubmapSpan, TruthConstraintConfig, TruthConstraints};
@@ -123,11 +123,11 @@ pub fn filter_poses(record: &RobotRecord) -> Vec<FilterPose> {
 }
 
 /// The robot's frame switches in the graph's terms.
-pub fn frame_switches(record: &RobotRecord) -> Vec<FrameSwitchMsg> {
+pub fn frame_switches(record: &RobotRecord) -> Vec<SubmapSwitch> {
     record
         .switches
         .iter()
-        .map(|s| FrameSwitchMsg {
+        .map(|s| SubmapSwitch {
             robot: robot_id(record.robot),
             stamp_ns: s.stamp_ns,
             from_index: s.old_frame_id,
@@ -162,7 +162,7 @@ pub fn exchange(
         for s in frame_switches(record) {
             for to in 0..n {
                 let arrival = s.stamp_ns + delay + if to == r { 0 } else { latency };
-                outbox.send(to, arrival, Measurement::FrameSwitch(s));
+                outbox.send(to, arrival, Measurement::SubmapSwitch(s));
             }
         }
         let mut next_remote_ns = 0;
@@ -320,7 +320,7 @@ impl Variant {
     fn keeps(&self, own: RobotId, m: &Measurement) -> bool {
         let own_only = match m {
             Measurement::FilterPose(p) => p.robot == own,
-            Measurement::FrameSwitch(s) => s.robot == own,
+            Measurement::SubmapSwitch(s) => s.robot == own,
             Measurement::Match(c) => c.a.robot == own && c.b.robot == own,
             Measurement::Attempt(a) => a.pair.first().robot == own && a.pair.second().robot == own,
             Measurement::Detection(_) | Measurement::Landmark(_) => false,
@@ -328,7 +328,7 @@ impl Variant {
         match self {
             Variant::Multi(_) => true,
             Variant::Single(_) => own_only,
-            Variant::FilterOnly => own_only && matches!(m, Measurement::FilterPose(_) | Measurement::FrameSwitch(_)),
+            Variant::FilterOnly => own_only && matches!(m, Measurement::FilterPose(_) | Measurement::SubmapSwitch(_)),
         }
     }
 }

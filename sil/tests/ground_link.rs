@@ -1,6 +1,7 @@
 //! The lockstep mission's ground link against a real UDP socket acting as the ground station:
-//! Telemetry v2 with bytes per class, the robots' poses and submap headers arrive; an
-//! authenticated `SetMode` is executed and acknowledged; `OUT/ground_feed.log` holds exactly the
+//! Telemetry v2 with bytes per class and measured values (the robots' real mode, CPU, memory, VO
+//! age), the robots' poses and submap headers arrive; an authenticated `SetMode` is executed and
+//! acknowledged; `OUT/ground_feed.log` holds exactly the
 //! packets that crossed the link, both ways.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
@@ -101,7 +102,7 @@ impl Station {
         }
         // Command robot 1 once it is heard from.
         if !self.command_sent && self.telemetry.iter().any(|t| t.robot == RobotId(1)) {
-            let command = Command { target: RobotId(1), id: COMMAND_ID, kind: CommandKind::SetMode(Mode::Autonomous) };
+            let command = Command { target: RobotId(1), id: COMMAND_ID, kind: CommandKind::SetMode(Mode::Safe) };
             let now_ms = self.now_ms();
             self.endpoint.send_authenticated(now_ms, NodeId(1), &AnyMessage::from(command), 1, &self.key).unwrap();
             self.command_sent = true;
@@ -164,14 +165,21 @@ fn a_udp_ground_station_gets_the_feed_commands_robots_and_the_log_holds_the_same
             assert!(class.tx_bytes > 0 && class.tx_packets > 0, "{class:?}");
         }
         assert!(station.poses.get(&robot.0).copied().unwrap_or(0) >= 5, "poses of {robot:?}: {:?}", station.poses);
+        // Measured, not placeholders: the nodes' CPU (handler time per second of sensor time),
+        // the process's memory and the board's, a VO result a moment ago.
+        let r = &last.resources;
+        assert!(r.cpu_permille > 0 && r.mem_used_kib > 0 && r.mem_total_kib >= r.mem_used_kib, "{r:?}");
+        assert!(last.filter.vo_age_ms < 2_000, "VO age {} ms", last.filter.vo_age_ms);
+        assert!(last.tasks.is_empty(), "the lockstep runner has no tasks to time: {:?}", last.tasks);
     }
     assert!(station.submap_headers >= 1, "no SubmapHeader reached the ground");
     // The command was executed, acknowledged, and robot 1's later telemetry reports the mode.
     assert!(station.command_sent);
     let ack = station.acks.iter().find(|a| a.command_id == COMMAND_ID).expect("the SetMode is acknowledged");
     assert_eq!((ack.robot, ack.outcome), (RobotId(1), CommandOutcome::Executed));
-    assert_eq!(station.telemetry.iter().rev().find(|t| t.robot == RobotId(1)).unwrap().mode, Mode::Autonomous);
-    assert_eq!(station.telemetry.iter().rev().find(|t| t.robot == RobotId(2)).unwrap().mode, Mode::Idle);
+    assert_eq!(station.telemetry.iter().rev().find(|t| t.robot == RobotId(1)).unwrap().mode, Mode::Safe);
+    // The other one reports what it is doing: exploring on its own.
+    assert_eq!(station.telemetry.iter().rev().find(|t| t.robot == RobotId(2)).unwrap().mode, Mode::Autonomous);
 
     // The recording holds exactly what crossed the link: downlink per robot in order, and the
     // station's packets (acks, the command) as the uplink of the addressed robot.

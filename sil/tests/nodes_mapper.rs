@@ -128,11 +128,11 @@ impl Feed {
     /// Stamp of the next event (`None` at the end).
     fn peek(&mut self) -> Option<u64> {
         if self.pending.is_none() {
-            let event = self.source.next_event(&mut self.frame).unwrap()?;
+            let event = hal::sensor::next_event_with_frame(&mut self.source, &mut self.frame).unwrap()?;
             let stamp = match &event {
                 SensorEvent::Imu(s) => s.stamp_ns,
                 SensorEvent::WheelOdom(s) => s.stamp_ns,
-                SensorEvent::Stereo => self.frame.stamp_ns,
+                SensorEvent::Stereo(_) => self.frame.stamp_ns,
             };
             self.pending = Some((stamp, event));
         }
@@ -164,6 +164,7 @@ impl Feed {
                     imu_lost: 0,
                     frame_id: self.frame_id,
                     status: FilterStateMsg::RUNNING,
+                    last_vo_capture_ns: FilterStateMsg::NEVER,
                 };
                 let before = out.requests.len();
                 node.on_message(Message::FilterState(&state), out).unwrap();
@@ -181,7 +182,7 @@ impl Feed {
                     node.on_message(Message::FrameSwitch(&switch), out).unwrap();
                 }
             }
-            SensorEvent::Stereo => {
+            SensorEvent::Stereo(_) => {
                 self.left.pixels.copy_from_slice(&self.frame.left);
                 self.right.pixels.copy_from_slice(&self.frame.right);
                 self.matcher.compute_into(&self.left, &self.right, &mut self.disparity).unwrap();

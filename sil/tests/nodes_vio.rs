@@ -350,6 +350,7 @@ fn bad_payloads_are_counted_and_skipped() {
         imu_lost: 0,
         frame_id: 0,
         status: FilterStateMsg::RUNNING,
+        last_vo_capture_ns: FilterStateMsg::NEVER,
     };
     nan_state.t_local_body.translation_m[0] = f64::NAN;
     vision.on_message(Message::FilterState(&nan_state), &mut out).unwrap();

@@ -23,7 +23,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use hal::asl::transform_rows;
-use hal::sensor::{ImuSample, SensorError, SensorEvent, SensorSource, StereoFrame, WheelOdomSample};
+use hal::sensor::{ImuSample, SensorError, SensorEvent, StereoFrame, WheelOdomSample};
 use nalgebra::Isometry3;
 
 use crate::camera::{PanTiltHead, StereoCamera};
@@ -509,7 +509,7 @@ pub fn record_robot(
     let mut source = SimSensorSource::new(Arc::clone(world), robot)?;
     let mut writer = AslWriter::create(dir, &setup)?;
     let mut frame = StereoFrame::default();
-    while let Some(event) = source.next_event(&mut frame)? {
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame)? {
         match event {
             SensorEvent::Imu(sample) => {
                 writer.write_imu(&sample)?;
@@ -519,7 +519,7 @@ pub fn record_robot(
                 writer.write_ground_truth(&truth)?;
             }
             SensorEvent::WheelOdom(sample) => writer.write_wheel(&sample)?,
-            SensorEvent::Stereo => {
+            SensorEvent::Stereo(_) => {
                 writer.write_stereo(&frame)?;
                 let state = world.robot_state(robot, frame.stamp_ns).ok_or_else(|| {
                     AslError::Invalid(format!("robot {robot}: no state at camera stamp {} ns", frame.stamp_ns))

@@ -7,7 +7,9 @@
 
 use std::sync::Arc;
 
-use hal::sensor::{SensorError, SensorEvent, SensorSource, StereoCalibration, StereoFrame};
+use hal::sensor::{
+    SensorError, SensorEvent, SensorSource, StereoCalibration, StereoInfo, check_stereo_buffers, no_pending_pair,
+};
 use nalgebra::Vector3;
 
 use crate::imu::ImuSimulator;
@@ -53,6 +55,8 @@ pub struct SimSensorSource {
     tick: u64,
     slot: Slot,
     stereo_sequence: u64,
+    /// The pair announced by `next_event`: rendered only when it is read.
+    pending: Option<StereoInfo>,
 }
 
 /// Ticks between events of a sensor at `rate_hz` on a grid of `tick_ns` (at least one).
@@ -94,6 +98,7 @@ impl SimSensorSource {
             tick: 0,
             slot: Slot::Imu,
             stereo_sequence: 0,
+            pending: None,
             world,
             robot,
         })
@@ -119,7 +124,7 @@ impl SimSensorSource {
         self.renderer.depth_m()
     }
 
-    /// Stereo frames delivered so far.
+    /// Stereo frames announced so far.
     pub fn frames_delivered(&self) -> u64 {
         self.stereo_sequence
     }
@@ -157,27 +162,35 @@ impl SimSensorSource {
         }
     }
 
-    fn render(&mut self, stamp_ns: u64, frame: &mut StereoFrame) -> Result<(), SensorError> {
-        let state = self.state(stamp_ns)?;
+    /// Announces the pair of `stamp_ns` (nothing is rendered yet).
+    fn announce(&mut self, stamp_ns: u64) -> StereoInfo {
+        let (pan_rad, tilt_rad) = self.world.head_angles(self.robot, stamp_ns);
+        let camera = self.renderer.camera();
+        let info = StereoInfo {
+            stamp_ns,
+            sequence: self.stereo_sequence,
+            width_px: camera.width_px,
+            height_px: camera.height_px,
+            pan_rad,
+            tilt_rad,
+        };
+        self.stereo_sequence += 1;
+        info
+    }
+
+    /// Renders the announced pair `info` into `left` and `right`; the image noise is keyed by the
+    /// pair's sequence number, so a skipped pair changes nothing for the next ones.
+    fn render(&mut self, info: &StereoInfo, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
+        let state = self.state(info.stamp_ns)?;
         let world = &*self.world;
         let robot = &world.robots[self.robot];
-        let (pan, tilt) = world.head_angles(self.robot, stamp_ns);
-        let t_world_cam = state.t_world_body * robot.model().t_body_cam(pan, tilt);
+        let t_world_cam = state.t_world_body * robot.model().t_body_cam(info.pan_rad, info.tilt_rad);
         self.quads.clear();
-        world.quads_at(stamp_ns, Some(self.robot), &mut self.quads);
-        let camera = *self.renderer.camera();
-        frame.resize(camera.width_px, camera.height_px);
-        let seed = rng::stream_seed(
-            world.scenario.seed,
-            &[streams::IMAGE_NOISE, u64::from(robot.setup.id), self.stereo_sequence],
-        );
+        world.quads_at(info.stamp_ns, Some(self.robot), &mut self.quads);
+        let seed =
+            rng::stream_seed(world.scenario.seed, &[streams::IMAGE_NOISE, u64::from(robot.setup.id), info.sequence]);
         let scene = world.scene(&self.quads);
-        self.renderer.render_stereo(&scene, &t_world_cam, seed, &mut frame.left, &mut frame.right);
-        frame.stamp_ns = stamp_ns;
-        frame.sequence = self.stereo_sequence;
-        frame.pan_rad = pan;
-        frame.tilt_rad = tilt;
-        self.stereo_sequence += 1;
+        self.renderer.render_stereo(&scene, &t_world_cam, seed, left, right);
         Ok(())
     }
 }
@@ -189,7 +202,8 @@ impl SensorSource for SimSensorSource {
         Some(model.camera.calibration(&model.t_body_cam(0.0, 0.0), model.head))
     }
 
-    fn next_event(&mut self, frame: &mut StereoFrame) -> Result<Option<SensorEvent>, SensorError> {
+    fn next_event(&mut self) -> Result<Option<SensorEvent>, SensorError> {
+        self.pending = None;
         let Some((stamp_ns, slot)) = self.advance() else {
             return Ok(None);
         };
@@ -206,10 +220,17 @@ impl SensorSource for SimSensorSource {
                 }
             }
             Slot::Stereo => {
-                self.render(stamp_ns, frame)?;
-                SensorEvent::Stereo
+                let info = self.announce(stamp_ns);
+                self.pending = Some(info);
+                SensorEvent::Stereo(info)
             }
         };
         Ok(Some(event))
+    }
+
+    fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
+        let info = self.pending.take().ok_or_else(no_pending_pair)?;
+        check_stereo_buffers(&info, left, right)?;
+        self.render(&info, left, right)
     }
 }

@@ -119,12 +119,12 @@ fn assert_reads_back(world: &Arc<World>, robot: usize, dir: &Path) -> [usize; 3]
     let (mut expected, mut actual) = (StereoFrame::default(), StereoFrame::default());
     let mut counts = [0usize; 3];
     loop {
-        let e = source.next_event(&mut expected).unwrap();
-        let a = dataset.next_event(&mut actual).unwrap();
+        let e = hal::sensor::next_event_with_frame(&mut source, &mut expected).unwrap();
+        let a = hal::sensor::next_event_with_frame(&mut dataset, &mut actual).unwrap();
         assert_eq!(e, a, "robot {robot}: event {counts:?} differs");
         match e {
             None => break,
-            Some(SensorEvent::Stereo) => {
+            Some(SensorEvent::Stereo(_)) => {
                 counts[2] += 1;
                 assert!(expected == actual, "robot {robot}: stereo frame {} differs", expected.stamp_ns);
             }

@@ -30,7 +30,7 @@ fn event_bytes(world: &Arc<World>, robot: usize) -> Vec<u8> {
     let mut frame = StereoFrame::default();
     let mut out = Vec::new();
     let put = |out: &mut Vec<u8>, v: &[f64]| v.iter().for_each(|x| out.extend_from_slice(&x.to_bits().to_le_bytes()));
-    while let Some(event) = source.next_event(&mut frame).unwrap() {
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
         match event {
             SensorEvent::Imu(s) => {
                 out.push(0);
@@ -45,7 +45,7 @@ fn event_bytes(world: &Arc<World>, robot: usize) -> Vec<u8> {
                 put(&mut out, s.angular_radps.as_slice());
                 put(&mut out, &s.sigma);
             }
-            SensorEvent::Stereo => {
+            SensorEvent::Stereo(_) => {
                 out.push(2);
                 out.extend_from_slice(&frame.stamp_ns.to_le_bytes());
                 out.extend_from_slice(&frame.left);
@@ -105,11 +105,11 @@ fn events_come_in_order_at_their_rates() {
         let mut counts = [[0u32; 3]; 2];
         let mut last = (0u64, 0usize);
         let mut sequence = 0;
-        while let Some(event) = source.next_event(&mut frame).unwrap() {
+        while let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
             let (stamp, kind) = match event {
                 SensorEvent::Imu(s) => (s.stamp_ns, 0),
                 SensorEvent::WheelOdom(s) => (s.stamp_ns, 1),
-                SensorEvent::Stereo => (frame.stamp_ns, 2),
+                SensorEvent::Stereo(_) => (frame.stamp_ns, 2),
             };
             assert!(stamp < world.end_ns());
             assert!((stamp, kind) > last || (stamp, kind) == (0, 0), "{last:?} then {:?}", (stamp, kind));
@@ -200,7 +200,9 @@ fn a_rover_sees_the_other_rovers_tag_where_it_projects() {
     let world = World::build(&s).unwrap();
     let mut source = SimSensorSource::new(world.clone(), 0).unwrap();
     let mut frame = StereoFrame::default();
-    while source.next_event(&mut frame).unwrap() != Some(SensorEvent::Stereo) {}
+    while !matches!(hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap(), Some(SensorEvent::Stereo(_)))
+    {
+    }
     assert_eq!(frame.stamp_ns, 0);
 
     let camera = world.robots[0].model().camera;

@@ -581,7 +581,7 @@ impl TeamModel {
         entry.header = Some(h);
         entry.switch = switch.map(|s| s.t_old_new);
         if let Some(s) = switch {
-            self.graph.insert(Measurement::FrameSwitch(s));
+            self.graph.insert(Measurement::SubmapSwitch(s));
         }
         if h.encoding == wire::SUBMAP_ENCODING_EXCHANGE_V1 && self.reassembler.start(&h).is_err() {
             self.counters.submaps_rejected += 1;

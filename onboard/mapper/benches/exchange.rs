@@ -70,8 +70,8 @@ fn main() {
     let mut sizes = Vec::new();
     let mut depth = DepthImage { width: w, height: h, depth_m: Vec::new() };
     while sizes.len() < submaps_wanted {
-        let Some(event) = source.next_event(&mut frame).expect("event") else { break };
-        if !matches!(event, SensorEvent::Stereo) || !frame.sequence.is_multiple_of(2) {
+        let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).expect("event") else { break };
+        if !matches!(event, SensorEvent::Stereo(_)) || !frame.sequence.is_multiple_of(2) {
             continue;
         }
         let t_world_cam = world.t_world_cam(0, frame.stamp_ns).expect("pose");

@@ -41,8 +41,10 @@ fn main() {
     let mut frame = StereoFrame::default();
     let mut t_first_world: Option<Isometry3<f64>> = None;
     while frames.len() < frames_wanted {
-        let Some(event) = source.next_event(&mut frame).expect("event") else { break };
-        if !matches!(event, SensorEvent::Stereo) || frame.stamp_ns < 2_000_000_000 || !frame.sequence.is_multiple_of(15)
+        let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).expect("event") else { break };
+        if !matches!(event, SensorEvent::Stereo(_))
+            || frame.stamp_ns < 2_000_000_000
+            || !frame.sequence.is_multiple_of(15)
         {
             continue;
         }

@@ -7,7 +7,7 @@
 //!
 //! | input | graph |
 //! |---|---|
-//! | [`FrameSwitchMsg`] (filter frame switch `w`) | submap origin `s_{j+1}` and factor `s_j → s_{j+1}` |
+//! | [`SubmapSwitch`] (filter frame switch `w`) | submap origin `s_{j+1}` and factor `s_j → s_{j+1}` |
 //! | [`FilterPose`] (filter pose `v` in the active submap) | buffered by stamp; becomes a factor `s_j → x` only when a measurement needs `x` |
 //! | [`RobotDetection`] (eq. 4.7) | robot poses `x` of both robots at the image stamp, factor `x → x` (Cauchy) |
 //! | [`LandmarkObservation`] | landmark node, factor `x → l` (Cauchy) |
@@ -46,6 +46,6 @@ pub use graph::{InsertOutcome, SlamError, TeamGraph, TeamGraphConfig, Topology};
 pub use ids::{NodeId, PoseId, RobotId, SubmapId, SubmapPair};
 pub use ledger::{AttemptOutcome, MatchLedger};
 pub use measurements::{
-    FilterPose, FrameSwitchMsg, LandmarkObservation, MatchAttempt, Measurement, RobotDetection, SubmapMatch,
+    FilterPose, LandmarkObservation, MatchAttempt, Measurement, RobotDetection, SubmapMatch, SubmapSwitch,
 };
-pub use pose_buffer::PoseBuffer;
+pub use pose_buffer::{FramePose, PoseBuffer, SameStamp, StampedPose, interpolate_pose};

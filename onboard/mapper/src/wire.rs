@@ -12,25 +12,22 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use crate::slam::{
-    self, AttemptOutcome, FilterPose, FrameSwitchMsg, LandmarkObservation, Measurement, RobotDetection, SubmapMatch,
-    SubmapPair,
+    self, AttemptOutcome, FilterPose, LandmarkObservation, Measurement, RobotDetection, SubmapMatch, SubmapPair,
+    SubmapSwitch,
 };
 use nalgebra::{Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion};
 use protocol::message::{
-    Constraint, ConstraintId, ConstraintKind, FrameSwitch, MatchAttempt, MatchOutcome, PoseEstimate,
-    SUBMAP_CHUNK_BYTES, SubmapChunk, SubmapHeader,
+    Constraint, ConstraintId, ConstraintKind, MatchAttempt, MatchOutcome, PoseEstimate, SUBMAP_CHUNK_BYTES,
+    SubmapChunk, SubmapHeader, SubmapLink,
 };
 use protocol::{Cov6, NodeRef, Pose3, RobotId as WireRobot, SubmapId as WireSubmap};
 
 /// [`SubmapHeader::encoding`] of payloads made by [`crate::exchange::encode_submap`].
 pub const SUBMAP_ENCODING_EXCHANGE_V1: protocol::message::SubmapEncoding = protocol::message::SubmapEncoding(1);
 
-const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
-/// CRC-32 (ISO-HDLC), the checksum of [`SubmapHeader::payload_crc32`].
-pub fn crc32(bytes: &[u8]) -> u32 {
-    CRC32.checksum(bytes)
-}
+/// CRC-32 (ISO-HDLC), the checksum of [`SubmapHeader::payload_crc32`]: the project's one
+/// ([`protocol::crc`]).
+pub use protocol::crc::crc32;
 
 pub fn pose3(t: &Isometry3<f64>) -> Pose3 {
     let q = t.rotation.quaternion();
@@ -160,7 +157,7 @@ pub fn constraint_message(
             };
             MatchAttempt { first, second, by: wire_robot(a.by)?, outcome }.into()
         }
-        Measurement::FrameSwitch(_) | Measurement::FilterPose(_) => return None,
+        Measurement::SubmapSwitch(_) | Measurement::FilterPose(_) => return None,
     };
     Some(message)
 }
@@ -215,10 +212,10 @@ pub fn attempt_measurement(a: &MatchAttempt) -> Option<Measurement> {
 }
 
 /// The frame switch a submap header carries (into `header.submap` from its predecessor).
-pub fn header_switch(h: &SubmapHeader) -> Result<Option<FrameSwitchMsg>, &'static str> {
+pub fn header_switch(h: &SubmapHeader) -> Result<Option<SubmapSwitch>, &'static str> {
     let Some(switch) = &h.switch else { return Ok(None) };
     let from_index = h.submap.index.checked_sub(1).ok_or("submap 0 cannot start with a switch")?;
-    Ok(Some(FrameSwitchMsg {
+    Ok(Some(SubmapSwitch {
         robot: u16::from(h.submap.robot.0),
         stamp_ns: h.started_stamp_ns,
         from_index,
@@ -227,8 +224,8 @@ pub fn header_switch(h: &SubmapHeader) -> Result<Option<FrameSwitchMsg>, &'stati
     }))
 }
 
-pub fn frame_switch(t_previous_this: &Isometry3<f64>, covariance_graph: &Matrix6<f64>) -> FrameSwitch {
-    FrameSwitch { t_previous_this: pose3(t_previous_this), covariance: cov6(covariance_graph) }
+pub fn frame_switch(t_previous_this: &Isometry3<f64>, covariance_graph: &Matrix6<f64>) -> SubmapLink {
+    SubmapLink { t_previous_this: pose3(t_previous_this), covariance: cov6(covariance_graph) }
 }
 
 /// Number of chunks a payload of `bytes` is cut into.

@@ -249,8 +249,10 @@ fn simulated_submap() -> Submap {
     let mut frame = StereoFrame::default();
     let mut t_first_world = None;
     while submap.images < 6 {
-        let Some(event) = source.next_event(&mut frame).expect("event") else { break };
-        if !matches!(event, SensorEvent::Stereo) || frame.stamp_ns < 2_000_000_000 || !frame.sequence.is_multiple_of(20)
+        let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).expect("event") else { break };
+        if !matches!(event, SensorEvent::Stereo(_))
+            || frame.stamp_ns < 2_000_000_000
+            || !frame.sequence.is_multiple_of(20)
         {
             continue;
         }

@@ -61,8 +61,8 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
     let mut path: Vec<Point2<f64>> = Vec::new();
     let mut frames = 0;
     let mut frame = StereoFrame::default();
-    while let Some(event) = source.next_event(&mut frame).unwrap() {
-        if !matches!(event, SensorEvent::Stereo) {
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
+        if !matches!(event, SensorEvent::Stereo(_)) {
             continue;
         }
         let stamp_ns = frame.stamp_ns;

@@ -81,7 +81,7 @@ fn delayed_shuffled_delivery_gives_the_in_order_estimate() {
     let mut rng = Rng::new(99);
     let (mut own, mut remote): (Vec<_>, Vec<_>) = in_order.iter().cloned().partition(|(_, m)| match m {
         Measurement::FilterPose(p) => p.robot == 0,
-        Measurement::FrameSwitch(s) => s.robot == 0,
+        Measurement::SubmapSwitch(s) => s.robot == 0,
         Measurement::Detection(d) => d.observer == 0,
         Measurement::Match(m) => m.a.robot == 0 && m.b.robot == 0,
         _ => true,

@@ -262,8 +262,8 @@ fn sim_frames(seed: u64, downscale: u32, from_s: f64, every: u64, count: usize) 
     let mut frames = Vec::new();
     let mut frame = StereoFrame::default();
     while frames.len() < count {
-        let Some(event) = source.next_event(&mut frame).unwrap() else { break };
-        if matches!(event, SensorEvent::Stereo)
+        let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() else { break };
+        if matches!(event, SensorEvent::Stereo(_))
             && frame.stamp_ns as f64 >= from_s * 1e9
             && frame.sequence.is_multiple_of(every)
         {
@@ -446,7 +446,7 @@ fn drive(policy: SubmapPolicy, duration_s: f64) -> DriveResult {
     let mut frame = StereoFrame::default();
     let mut last_truth: Option<Vector3<f64>> = None;
     let mut imu_count = 0u64;
-    while let Some(event) = source.next_event(&mut frame).unwrap() {
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
         match event {
             SensorEvent::Imu(sample) => {
                 filter.propagate(&sample).unwrap();
@@ -457,7 +457,7 @@ fn drive(policy: SubmapPolicy, duration_s: f64) -> DriveResult {
                 filter.update_wheel_odometry(&sample).unwrap();
                 reference.update_wheel_odometry(&sample).unwrap();
             }
-            SensorEvent::Stereo => continue,
+            SensorEvent::Stereo(_) => continue,
         }
         // The mapper sees the filter state at 20 Hz (as the runtime would publish it).
         if !imu_count.is_multiple_of(10) || !matches!(event, SensorEvent::Imu(_)) {

@@ -1,91 +1,101 @@
-//! Per-frame IPC latency between two processes: a 1024×508 stereo pair (1 MB) and a 1024×508
-//! disparity map (2 MB), through the iceoryx2 bus (written once into shared memory, read in
-//! place) and, as the reference, through a Unix-domain stream socket (copied through the kernel
-//! into the receiver's buffer).
+//! Per-frame IPC latency of stereo pairs between two processes, from 256×127 to 2048×1016
+//! pixels, three ways:
 //!
-//! Latency is publish start → the receiver holds a usable frame, from a CLOCK_MONOTONIC stamp the
-//! sender puts in the frame (`Instant` is not comparable across processes). The receiver polls
-//! the bus with `yield` between polls and blocks in `read` on the socket.
+//! - **iceoryx2, written in place** (what the driver does since the images went zero-copy): the
+//!   sender renders the pair straight into a loaned shared-memory sample
+//!   (`Outbox::publish_stereo_with`), stamps it as the last write and sends; the receiver reads it
+//!   where it lies. The latency is publish → usable, and it does not grow with the image.
+//! - **iceoryx2, copied in** (what the driver did before): the pair is stamped in the sender's own
+//!   buffer, then copied into the sample by `Outbox::publish`; the copy is inside the latency.
+//! - **Unix-domain socket** (reference): stamped, written, copied by the kernel into the
+//!   receiver's buffer.
 //!
-//! `cargo bench -p onboard --bench ipc_latency` runs 500 frames per case; without `--bench` (as
-//! `cargo test --all-targets` runs it) 5 frames.
+//! The stamp is a CLOCK_MONOTONIC reading in the payload's first 8 bytes (`Instant` is not
+//! comparable across processes). The bus receiver polls with `yield` between polls; the socket
+//! receiver blocks in `read`. iceoryx2's own published figure (its README, "Performance": 240 ns
+//! at 64 B and at 64 kB, busy-waiting subscribers on an i7-10875H) is the reference for the shape:
+//! flat in the payload size.
+//!
+//! `cargo bench -p onboard --bench ipc_latency` runs 300 frames per case; without `--bench` (as
+//! `cargo test --all-targets` runs it) 3.
 
 use std::io::{Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
-use msgs::{DisparityHeader, DisparityPixel, StereoHeader};
+use msgs::StereoHeader;
 use nix::time::{ClockId, clock_gettime};
 use onboard::bus::{Bus, ImageGeometry, purge_robot};
 use onboard::nodes::{Message, Outbox, Topic};
 
 const ROLE: &str = "ONBOARD_IPC_BENCH_ROLE";
-const GEOMETRY: ImageGeometry = ImageGeometry { width_px: 1024, height_px: 508 };
-const PIXELS: usize = 1024 * 508;
-/// Frames before the measured ones: enough to touch every sample slot of the publisher once
-/// (page faults of fresh shared memory are start-up cost, not per-frame latency).
-const WARMUP: u64 = 64;
+const SIZES: [(u32, u32); 4] = [(256, 127), (512, 254), (1024, 508), (2048, 1016)];
 
 type BenchResult<T> = Result<T, Box<dyn std::error::Error>>;
 
-fn monotonic_ns() -> BenchResult<u64> {
-    let t = clock_gettime(ClockId::CLOCK_MONOTONIC)?;
-    Ok(u64::try_from(t.tv_sec())? * 1_000_000_000 + u64::try_from(t.tv_nsec())?)
+fn monotonic_ns() -> u64 {
+    clock_gettime(ClockId::CLOCK_MONOTONIC)
+        .map(|t| (t.tv_sec().max(0) as u64) * 1_000_000_000 + t.tv_nsec().max(0) as u64)
+        .unwrap_or(0)
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Payload {
-    Stereo,
-    Disparity,
+enum Transport {
+    InPlace,
+    CopiedIn,
+    Socket,
 }
 
-impl Payload {
+impl Transport {
+    const ALL: [Transport; 3] = [Transport::InPlace, Transport::CopiedIn, Transport::Socket];
+
     fn name(self) -> &'static str {
         match self {
-            Payload::Stereo => "stereo",
-            Payload::Disparity => "disparity",
+            Transport::InPlace => "shm-in-place",
+            Transport::CopiedIn => "shm-copied-in",
+            Transport::Socket => "unix-socket",
         }
     }
 
-    fn bytes(self) -> usize {
-        match self {
-            Payload::Stereo => 2 * PIXELS,
-            Payload::Disparity => PIXELS * std::mem::size_of::<DisparityPixel>(),
-        }
-    }
-
-    fn topic(self) -> Topic {
-        match self {
-            Payload::Stereo => Topic::Stereo,
-            Payload::Disparity => Topic::Disparity,
-        }
-    }
-
-    fn parse(name: &str) -> Option<Payload> {
-        [Payload::Stereo, Payload::Disparity].into_iter().find(|p| p.name() == name)
+    fn parse(name: &str) -> Option<Transport> {
+        Transport::ALL.into_iter().find(|t| t.name() == name)
     }
 }
 
 #[derive(Debug, Clone, Copy)]
 struct Plan {
+    warmup: u64,
     frames: u64,
     period: Duration,
 }
 
-/// The sending process: `shm <payload> <robot> <frames> <period_us>` or
-/// `uds <payload> <socket path> <frames> <period_us>`.
+/// A pair's bytes as a renderer would leave them (any pattern: the receiver does not check it).
+fn render(bytes: &mut [u8], sequence: u64) {
+    for (i, b) in bytes.iter_mut().enumerate() {
+        *b = (i as u64).wrapping_add(sequence) as u8;
+    }
+}
+
+fn stamp(bytes: &mut [u8]) {
+    bytes[..8].copy_from_slice(&monotonic_ns().to_le_bytes());
+}
+
+fn stamp_of(bytes: &[u8]) -> u64 {
+    bytes.get(..8).and_then(|b| b.try_into().ok()).map_or(0, u64::from_le_bytes)
+}
+
+/// The sending process: `<transport> <width> <height> <robot or socket path> <frames> <period_us>`.
 fn sender(spec: &str) -> BenchResult<()> {
     let fields: Vec<&str> = spec.split(' ').collect();
-    let [transport, payload, target, frames, period_us] = fields[..] else {
+    let [transport, width, height, target, frames, period_us] = fields[..] else {
         return Err(format!("bad role {spec}").into());
     };
-    let payload = Payload::parse(payload).ok_or("unknown payload")?;
+    let transport = Transport::parse(transport).ok_or("unknown transport")?;
+    let (width_px, height_px): (u32, u32) = (width.parse()?, height.parse()?);
     let frames: u64 = frames.parse()?;
     let period = Duration::from_micros(period_us.parse()?);
-    let stereo: Vec<u8> = (0..2 * PIXELS).map(|i| (i % 251) as u8).collect();
-    let disparity: Vec<DisparityPixel> =
-        (0..PIXELS).map(|i| DisparityPixel { disparity_q4: (i % 4093) as u16, labels: 0, reserved: 0 }).collect();
+    let len = 2 * width_px as usize * height_px as usize;
     let start = Instant::now();
     let pace = |i: u64| {
         let due = start + period * u32::try_from(i).unwrap_or(u32::MAX);
@@ -93,47 +103,37 @@ fn sender(spec: &str) -> BenchResult<()> {
             std::thread::sleep(wait);
         }
     };
+    let header = |sequence| StereoHeader { stamp_ns: 0, sequence, pan_rad: 0.0, tilt_rad: 0.0, width_px, height_px };
     match transport {
-        "shm" => {
-            let bus = Bus::open(target.parse()?, "vision", GEOMETRY)?;
-            let mut outbox = bus.outbox(&[payload.topic()])?;
+        Transport::InPlace | Transport::CopiedIn => {
+            let bus = Bus::open(target.parse()?, "driver", ImageGeometry { width_px, height_px })?;
+            let mut outbox = bus.outbox(&[Topic::Stereo])?;
+            let mut own = vec![0u8; len];
             for sequence in 0..frames {
                 pace(sequence);
-                let stamp_ns = monotonic_ns()?;
-                let (w, h) = (GEOMETRY.width_px, GEOMETRY.height_px);
-                match payload {
-                    Payload::Stereo => {
-                        let header =
-                            StereoHeader { stamp_ns, sequence, pan_rad: 0.0, tilt_rad: 0.0, width_px: w, height_px: h };
-                        outbox.publish(Message::Stereo(&header, &stereo))?;
-                    }
-                    Payload::Disparity => {
-                        let header = DisparityHeader {
-                            stamp_ns,
-                            sequence,
-                            pan_rad: 0.0,
-                            tilt_rad: 0.0,
-                            width_px: w,
-                            height_px: h,
-                        };
-                        outbox.publish(Message::Disparity(&header, &disparity))?;
-                    }
+                if transport == Transport::InPlace {
+                    outbox.publish_stereo_with(&header(sequence), &mut |bytes| {
+                        render(bytes, sequence);
+                        stamp(bytes);
+                        Ok(())
+                    })?;
+                } else {
+                    render(&mut own, sequence);
+                    stamp(&mut own);
+                    outbox.publish(Message::Stereo(&header(sequence), &own))?;
                 }
             }
         }
-        "uds" => {
+        Transport::Socket => {
             let mut stream = UnixStream::connect(target)?;
-            let bytes: &[u8] = match payload {
-                Payload::Stereo => &stereo,
-                Payload::Disparity => bytemuck::cast_slice(&disparity),
-            };
+            let mut own = vec![0u8; len];
             for sequence in 0..frames {
                 pace(sequence);
-                stream.write_all(&monotonic_ns()?.to_le_bytes())?;
-                stream.write_all(bytes)?;
+                render(&mut own, sequence);
+                stamp(&mut own);
+                stream.write_all(&own)?;
             }
         }
-        other => return Err(format!("unknown transport {other}").into()),
     }
     Ok(())
 }
@@ -150,71 +150,63 @@ fn finish(mut child: Child) -> BenchResult<()> {
     Ok(())
 }
 
-/// Latencies (ns) of the frames after the warm-up, received over the bus.
-fn run_shm(payload: Payload, plan: Plan) -> BenchResult<Vec<u64>> {
-    let robot = 60_000 + (std::process::id() % 5_000) as u16;
-    let bus = Bus::open(robot, "mapper", GEOMETRY)?;
-    let mut inbox = bus.inbox(&[payload.topic()])?;
-    let child =
-        spawn_sender(&format!("shm {} {robot} {} {}", payload.name(), plan.frames + WARMUP, plan.period.as_micros()))?;
+/// Latencies (ns) of the frames after the warm-up.
+fn run(transport: Transport, (width_px, height_px): (u32, u32), plan: Plan) -> BenchResult<Vec<u64>> {
+    let total = plan.warmup + plan.frames;
+    let tail = format!("{width_px} {height_px}");
     let mut latencies = Vec::with_capacity(plan.frames as usize);
+    if transport == Transport::Socket {
+        let path = std::env::temp_dir().join(format!("onboard_ipc_latency_{}.sock", std::process::id()));
+        let _ = std::fs::remove_file(&path);
+        let listener = UnixListener::bind(&path)?;
+        let child = spawn_sender(&format!(
+            "{} {tail} {} {total} {}",
+            transport.name(),
+            path.display(),
+            plan.period.as_micros()
+        ))?;
+        let (mut stream, _) = listener.accept()?;
+        let mut frame = vec![0u8; 2 * width_px as usize * height_px as usize];
+        for i in 0..total {
+            stream.read_exact(&mut frame)?;
+            let now_ns = monotonic_ns();
+            if i >= plan.warmup {
+                latencies.push(now_ns.saturating_sub(stamp_of(&frame)));
+            }
+        }
+        finish(child)?;
+        let _ = std::fs::remove_file(&path);
+        return Ok(latencies);
+    }
+    let robot = 60_000 + (std::process::id() % 5_000) as u16;
+    let bus = Bus::open(robot, "vision", ImageGeometry { width_px, height_px })?;
+    let mut inbox = bus.inbox(&[Topic::Stereo])?;
+    let child = spawn_sender(&format!("{} {tail} {robot} {total} {}", transport.name(), plan.period.as_micros()))?;
     let mut received = 0;
-    let deadline = Instant::now() + plan.period * u32::try_from(plan.frames + WARMUP)? + Duration::from_secs(20);
-    while received < plan.frames + WARMUP && Instant::now() < deadline {
+    let deadline = Instant::now() + plan.period * u32::try_from(total)? + Duration::from_secs(20);
+    while received < total && Instant::now() < deadline {
         if !inbox.has_pending()? {
             std::thread::yield_now();
             continue;
         }
         inbox.drain(&mut |message| {
-            let now_ns = monotonic_ns().unwrap_or(0);
-            let sequence = match message {
-                Message::Stereo(h, _) => h.sequence,
-                Message::Disparity(h, _) => h.sequence,
-                _ => u64::MAX,
-            };
-            if (WARMUP..WARMUP + plan.frames).contains(&sequence) {
-                latencies.push(now_ns.saturating_sub(message.stamp_ns()));
+            let now_ns = monotonic_ns();
+            if let Message::Stereo(header, bytes) = message
+                && (plan.warmup..total).contains(&header.sequence)
+            {
+                latencies.push(now_ns.saturating_sub(stamp_of(bytes)));
             }
             received += 1;
             Ok(())
         })?;
     }
-    let lost = inbox.counters(payload.topic()).sequence_gaps;
+    let lost = inbox.counters(Topic::Stereo).sequence_gaps;
     finish(child)?;
     drop((inbox, bus));
     purge_robot(robot)?;
     if lost > 0 {
-        eprintln!("ipc_latency: {lost} {} frames dropped on the bus", payload.name());
+        eprintln!("ipc_latency: {lost} frames dropped on the bus");
     }
-    Ok(latencies)
-}
-
-/// Latencies (ns) of the frames after the warm-up, copied through a Unix-domain socket.
-fn run_uds(payload: Payload, plan: Plan) -> BenchResult<Vec<u64>> {
-    let path = std::env::temp_dir().join(format!("onboard_ipc_latency_{}.sock", std::process::id()));
-    let _ = std::fs::remove_file(&path);
-    let listener = UnixListener::bind(&path)?;
-    let child = spawn_sender(&format!(
-        "uds {} {} {} {}",
-        payload.name(),
-        path.display(),
-        plan.frames + WARMUP,
-        plan.period.as_micros()
-    ))?;
-    let (mut stream, _) = listener.accept()?;
-    let mut frame = vec![0u8; payload.bytes()];
-    let mut stamp = [0u8; 8];
-    let mut latencies = Vec::with_capacity(plan.frames as usize);
-    for i in 0..plan.frames + WARMUP {
-        stream.read_exact(&mut stamp)?;
-        stream.read_exact(&mut frame)?;
-        let now_ns = monotonic_ns()?;
-        if i >= WARMUP {
-            latencies.push(now_ns.saturating_sub(u64::from_le_bytes(stamp)));
-        }
-    }
-    finish(child)?;
-    let _ = std::fs::remove_file(&path);
     Ok(latencies)
 }
 
@@ -223,7 +215,6 @@ struct Stats {
     n: usize,
     p50_us: f64,
     p99_us: f64,
-    max_us: f64,
 }
 
 fn stats(mut latencies_ns: Vec<u64>) -> Stats {
@@ -233,7 +224,7 @@ fn stats(mut latencies_ns: Vec<u64>) -> Stats {
         let rank = ((q * n as f64).ceil() as usize).clamp(1, n.max(1)) - 1;
         latencies_ns.get(rank).copied().unwrap_or(0) as f64 / 1_000.0
     };
-    Stats { n, p50_us: at(0.5), p99_us: at(0.99), max_us: latencies_ns.last().copied().unwrap_or(0) as f64 / 1_000.0 }
+    Stats { n, p50_us: at(0.5), p99_us: at(0.99) }
 }
 
 fn main() -> BenchResult<()> {
@@ -242,48 +233,47 @@ fn main() -> BenchResult<()> {
     }
     let heavy = std::env::args().any(|a| a == "--bench");
     let plan = if heavy {
-        Plan { frames: 500, period: Duration::from_millis(10) }
+        // The warm-up touches every sample slot of the publisher once: page faults of fresh shared
+        // memory are start-up cost, not per-frame latency.
+        Plan { warmup: 64, frames: 300, period: Duration::from_millis(10) }
     } else {
-        Plan { frames: 5, period: Duration::from_millis(5) }
+        Plan { warmup: 4, frames: 3, period: Duration::from_millis(5) }
     };
     println!(
-        "ipc_latency: {}x{} px, {} frames per case after {WARMUP} warm-up, one every {} ms{}",
-        GEOMETRY.width_px,
-        GEOMETRY.height_px,
+        "ipc_latency: stereo pairs, {} frames per case after {} warm-up, one every {} ms{}",
         plan.frames,
+        plan.warmup,
         plan.period.as_millis(),
         if heavy { "" } else { " (smoke run; pass --bench for the full run)" }
     );
-    println!(
-        "{:<10} {:>9} {:<22} {:>5} {:>9} {:>9} {:>9}",
-        "payload", "bytes", "transport", "n", "p50 µs", "p99 µs", "max µs"
-    );
-    for payload in [Payload::Stereo, Payload::Disparity] {
-        let shm = stats(run_shm(payload, plan)?);
-        let uds = stats(run_uds(payload, plan)?);
-        for (transport, s) in [("iceoryx2 shm, in place", shm), ("unix socket, copied", uds)] {
+    println!("{:<11} {:>10} {:<14} {:>5} {:>10} {:>10}", "size", "bytes", "transport", "n", "p50 µs", "p99 µs");
+    let mut in_place_p50 = Vec::new();
+    for size in SIZES {
+        let bytes = 2 * size.0 as usize * size.1 as usize;
+        for transport in Transport::ALL {
+            let s = stats(run(transport, size, plan)?);
             println!(
-                "{:<10} {:>9} {:<22} {:>5} {:>9.1} {:>9.1} {:>9.1}",
-                payload.name(),
-                payload.bytes(),
-                transport,
+                "{:<11} {:>10} {:<14} {:>5} {:>10.1} {:>10.1}",
+                format!("{}x{}", size.0, size.1),
+                bytes,
+                transport.name(),
                 s.n,
                 s.p50_us,
-                s.p99_us,
-                s.max_us
+                s.p99_us
             );
+            if s.n != plan.frames as usize {
+                return Err(format!("{}: {} of {} frames arrived", transport.name(), s.n, plan.frames).into());
+            }
+            if transport == Transport::InPlace {
+                in_place_p50.push(s.p50_us);
+            }
         }
-        if shm.n != plan.frames as usize {
-            return Err(
-                format!("{}: only {} of {} frames arrived over the bus", payload.name(), shm.n, plan.frames).into()
-            );
-        }
-        println!(
-            "{:<10} socket / shm latency: p50 {:.1}x, p99 {:.1}x",
-            payload.name(),
-            uds.p50_us / shm.p50_us.max(1e-3),
-            uds.p99_us / shm.p99_us.max(1e-3)
-        );
     }
+    let (low, high) = in_place_p50.iter().fold((f64::MAX, 0.0_f64), |(l, h), &v| (l.min(v), h.max(v)));
+    println!(
+        "in place: p50 from {low:.1} to {high:.1} µs over a {}x range of sizes (iceoryx2's published 240 ns is \
+         flat from 64 B to 64 kB, busy-waiting)",
+        (SIZES[3].0 * SIZES[3].1) / (SIZES[0].0 * SIZES[0].1)
+    );
     Ok(())
 }

@@ -167,6 +167,7 @@ impl FilterStep {
                 imu_lost: 0,
                 frame_id: state.frame_id,
                 status: FilterStateMsg::RUNNING,
+                last_vo_capture_ns: FilterStateMsg::NEVER,
             };
             self.checksum += black_box(&msg).pose_covariance[0];
         }

@@ -76,6 +76,35 @@ pub struct RobotConfig {
     /// Where the processes write their outputs and telemetry files; default `runs/rover{id}`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub output_dir: Option<PathBuf>,
+    /// The operating mode the robot boots into (reported to the ground; a ground command changes
+    /// it): `idle` (estimating, not moving on its own), `autonomous` (exploring on its own), ...
+    #[serde(default)]
+    pub mode: ModeConfig,
+}
+
+/// The robot's operating mode (`protocol::message::Mode`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModeConfig {
+    #[default]
+    Idle,
+    Waypoint,
+    Autonomous,
+    Teleoperated,
+    Safe,
+}
+
+impl ModeConfig {
+    pub fn mode(self) -> protocol::message::Mode {
+        use protocol::message::Mode;
+        match self {
+            ModeConfig::Idle => Mode::Idle,
+            ModeConfig::Waypoint => Mode::Waypoint,
+            ModeConfig::Autonomous => Mode::Autonomous,
+            ModeConfig::Teleoperated => Mode::Teleoperated,
+            ModeConfig::Safe => Mode::Safe,
+        }
+    }
 }
 
 impl RobotConfig {
@@ -514,7 +543,7 @@ pub enum ConfigError {
 impl Default for RoverConfig {
     fn default() -> Self {
         RoverConfig {
-            robot: RobotConfig { id: 0, name: String::new(), bus_id: None, output_dir: None },
+            robot: RobotConfig { id: 0, name: String::new(), bus_id: None, output_dir: None, mode: ModeConfig::Idle },
             driver: DriverConfig::default(),
             camera: CameraConfig::default(),
             imu: ImuConfig::default(),

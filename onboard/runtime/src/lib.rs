@@ -6,6 +6,7 @@
 //!   and `onboard vio` get them from).
 //! - [`sensors`]: where the sensor data comes from ([`sensors::SourceProvider`]: a dataset replay
 //!   in the firmware; the simulator is plugged in by the `sil` harness) and the calibration.
+//! - [`topics`]: the registry of the bus topics (path, recording code, publisher, settings).
 //! - [`bus`]: the iceoryx2 shared-memory bus of the process runner.
 //! - [`process`]: the process runner: one OS process per node, the supervisor.
 //! - [`lockstep`]: the lockstep runner's in-process bus (simulated time, deterministic).
@@ -26,5 +27,6 @@ pub mod record;
 pub mod sensors;
 pub mod stack;
 pub mod task;
+pub mod topics;
 pub mod tum;
 pub mod vio;

@@ -15,8 +15,9 @@ use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use bytemuck::Zeroable;
 use hal::sensor::SensorSource;
-use msgs::DisparityPixel;
+use msgs::{DisparityHeader, DisparityPixel, ProcessKind, StereoHeader, TaskStatsMsg};
 
 use crate::config::RoverConfig;
 use crate::nodes::comms::CommsNode;
@@ -98,10 +99,41 @@ pub struct LocalBus {
 impl Outbox for LocalBus {
     fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
         let owned = self.pool.own(&message);
-        if let Some(count) = self.published.get_mut(usize::from(message.topic().code())) {
-            *count += 1;
-        }
+        self.count(message.topic());
         self.queue.push_back(owned);
+        Ok(())
+    }
+
+    /// The pair is written into a pooled buffer that goes to the readers as it is.
+    fn publish_stereo_with(
+        &mut self,
+        header: &StereoHeader,
+        fill: &mut dyn FnMut(&mut [u8]) -> Result<(), NodeError>,
+    ) -> Result<(), NodeError> {
+        let len = crate::nodes::stereo_len(header)?;
+        let mut bytes = self.pool.bytes.pop().unwrap_or_default();
+        bytes.resize(len, 0);
+        if let Err(e) = fill(&mut bytes) {
+            self.pool.recycle(OwnedMessage::Stereo(*header, bytes));
+            return Err(e);
+        }
+        self.count(Topic::Stereo);
+        self.queue.push_back(OwnedMessage::Stereo(*header, bytes));
+        Ok(())
+    }
+
+    /// The map is written into a pooled buffer that goes to the readers as it is.
+    fn publish_disparity_with(
+        &mut self,
+        header: &DisparityHeader,
+        pixel: &dyn Fn(usize) -> DisparityPixel,
+    ) -> Result<(), NodeError> {
+        let len = crate::nodes::disparity_len(header)?;
+        let mut pixels = self.pool.pixels.pop().unwrap_or_default();
+        pixels.clear();
+        pixels.extend((0..len).map(pixel));
+        self.count(Topic::Disparity);
+        self.queue.push_back(OwnedMessage::Disparity(*header, pixels));
         Ok(())
     }
 }
@@ -125,6 +157,12 @@ impl LocalBus {
     /// The tapped messages since the last call.
     pub fn take_tapped(&mut self) -> Vec<OwnedMessage> {
         std::mem::take(&mut self.tapped)
+    }
+
+    fn count(&mut self, topic: Topic) {
+        if let Some(count) = self.published.get_mut(usize::from(topic.code())) {
+            *count += 1;
+        }
     }
 
     pub fn published(&self, topic: Topic) -> u64 {
@@ -184,6 +222,8 @@ impl LocalBus {
 
 /// The lockstep step: one IMU period at 200 Hz.
 pub const STEP_NS: u64 = 5_000_000;
+/// The nodes' usage goes to the comms node's telemetry once per second of sensor time.
+const USAGE_PERIOD_NS: u64 = 1_000_000_000;
 
 /// The node names in [`RobotStack`] order (the index of [`NodeTimes::seconds`]).
 pub const NODE_NAMES: [&str; 5] = ["driver", "vision", "filter", "mapper", "comms"];
@@ -210,6 +250,8 @@ pub struct RobotStack {
     pub times: NodeTimes,
     mapper_period_ns: u64,
     comms_period_ns: u64,
+    /// Next sensor time at which the nodes' usage goes to the comms node's telemetry.
+    next_usage_ns: u64,
 }
 
 impl RobotStack {
@@ -238,6 +280,7 @@ impl RobotStack {
             times: NodeTimes::default(),
             mapper_period_ns: config.rates.mapper.period_ns().max(STEP_NS),
             comms_period_ns: config.rates.comms.period_ns().max(STEP_NS),
+            next_usage_ns: USAGE_PERIOD_NS,
         })
     }
 
@@ -261,8 +304,34 @@ impl RobotStack {
             now_ns.is_multiple_of(self.mapper_period_ns),
             now_ns.is_multiple_of(self.comms_period_ns),
         ];
+        if self.comms.is_some() && now_ns >= self.next_usage_ns {
+            self.next_usage_ns = now_ns + USAGE_PERIOD_NS;
+            self.publish_usage(now_ns)?;
+        }
         let (mut nodes, bus, times) = self.nodes();
         bus.tick(now_ns, &mut nodes, &due, times)
+    }
+
+    /// What each node has used, measured: its handler time (per second of sensor time it is the
+    /// share of one core the robot needs at real time) and the process's resident memory (the
+    /// one process all robots of a lockstep run share). No task timing: there are no tasks.
+    fn publish_usage(&mut self, now_ns: u64) -> Result<(), NodeError> {
+        let rss_bytes = crate::task::usage::ProcessUsage::now().map_or(0, |u| u.rss_bytes);
+        let kinds =
+            [ProcessKind::Driver, ProcessKind::Vision, ProcessKind::Filter, ProcessKind::Mapper, ProcessKind::Comms];
+        for (i, kind) in kinds.into_iter().enumerate() {
+            let cpu_s = self.times.seconds.get(i).copied().unwrap_or(0.0);
+            let stats = TaskStatsMsg {
+                stamp_ns: now_ns,
+                period_ns: TaskStatsMsg::NO_TASK,
+                process_cpu_ns: (cpu_s * 1e9) as u64,
+                process_rss_bytes: rss_bytes,
+                process: kind as u32,
+                ..TaskStatsMsg::zeroed()
+            };
+            self.bus.publish(Message::TaskStats(&stats))?;
+        }
+        Ok(())
     }
 
     /// Delivers what is queued (e.g. after the runner inserted messages itself).

@@ -33,11 +33,11 @@ use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
-use crc::{CRC_32_ISO_HDLC, Crc};
 use msgs::{
     DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, MarkerMsg,
     StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
 };
+use protocol::crc::CRC32;
 
 use crate::nodes::{Message, Node, NodeError, Outbox, Topic};
 
@@ -50,8 +50,6 @@ pub const RECORD_CRC_BYTES: usize = 4;
 pub const MAX_HEADER_BYTES: u32 = 4096;
 /// Larger than a 4096×4096 stereo pair.
 pub const MAX_PAYLOAD_BYTES: u32 = 64 << 20;
-
-const CRC32: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {

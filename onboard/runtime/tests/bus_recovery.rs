@@ -177,6 +177,7 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         imu_lost: 0,
         frame_id: 0,
         status: FilterStateMsg::RUNNING,
+        last_vo_capture_ns: FilterStateMsg::NEVER,
     };
     let request = FrameSwitchRequestMsg { stamp_ns, frame_id: 0, reserved: 0 };
     let switch =
@@ -197,6 +198,10 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         process_rss_bytes: 0,
         process: 2,
         task: 0,
+        queue_topic: 0,
+        queue_depth_max: 0,
+        queue_capacity: 0,
+        reserved: 0,
     };
     let imu = ImuMsg { stamp_ns, ..imu(0) };
     let messages = [

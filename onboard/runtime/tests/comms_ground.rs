@@ -97,6 +97,7 @@ fn filter_state(stamp_ns: u64) -> FilterStateMsg {
         imu_lost: 0,
         frame_id: 0,
         status: FilterStateMsg::RUNNING,
+        last_vo_capture_ns: FilterStateMsg::NEVER,
     }
 }
 
@@ -272,7 +273,11 @@ fn the_ground_key_file_and_rate_are_validated_with_the_configuration() {
     let key = dir.join("ground.key");
     std::fs::write(&key, KEY.iter().map(|b| format!("{b:02x}")).collect::<String>()).unwrap();
     std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600)).unwrap();
-    let toml = |extra: &str| format!("[robot]\nid = 0\n[link]\nground_feed = \"127.0.0.1:7700\"\n{extra}\n");
+    let toml = |extra: &str| {
+        format!(
+            "[robot]\nid = 0\n[driver]\nreplay_path = \"data/x\"\n[link]\nground_feed = \"127.0.0.1:7700\"\n{extra}\n"
+        )
+    };
     let config = onboard::config::RoverConfig::from_toml_str(&toml(&format!("ground_key_file = {:?}", key))).unwrap();
     assert_eq!(config.link.ground_key_file.as_deref(), Some(key.as_path()));
     assert_eq!(config.link.ground_bandwidth_bytes_per_s, onboard::nodes::comms::GROUND_RATE_BYTES_PER_S);

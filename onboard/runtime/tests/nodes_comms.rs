@@ -12,7 +12,7 @@ use hal::link::Link;
 use hal::udp::UdpLink;
 use msgs::{FilterStateMsg, Pose, ProcessKind, TaskStatsMsg, TeamHeader};
 use onboard::nodes::comms::{CommsConfig, CommsNode, LinkConfig, LinkDriver, LinkId, step_duplex};
-use onboard::nodes::{Message, Node, NodeError, Outbox};
+use onboard::nodes::{Message, Node, NodeError, Outbox, Topic};
 use proptest::prelude::*;
 use protocol::delivery::{Endpoint, EndpointConfig, RtoConfig};
 use protocol::frame::Framing;
@@ -476,6 +476,11 @@ fn task_stats(process: ProcessKind, overruns: u64, stamp_ns: u64, cpu_ns: u64) -
         process_rss_bytes: 50 << 20,
         process: process as u32,
         task: 0,
+        // The filter's IMU queue held 7 of its 512 samples at its fullest.
+        queue_topic: if process == ProcessKind::Filter { u32::from(Topic::Imu.code()) } else { 0 },
+        queue_depth_max: if process == ProcessKind::Filter { 7 } else { 0 },
+        queue_capacity: if process == ProcessKind::Filter { 512 } else { 0 },
+        reserved: 0,
     }
 }
 
@@ -494,6 +499,7 @@ fn filter_state(stamp_ns: u64) -> FilterStateMsg {
         imu_lost: 0,
         frame_id: 3,
         status: FilterStateMsg::RUNNING,
+        last_vo_capture_ns: stamp_ns.saturating_sub(300_000_000),
     }
 }
 
@@ -568,8 +574,11 @@ fn ground_station_gets_telemetry_and_commands_are_authenticated() {
     assert_eq!(t.resources.mem_used_kib, 2 * (50 << 10));
     // Filter 1/4 core + vision 1/2 core on one configured core: 750 ‰ (± clock steps).
     assert!((700..=800).contains(&t.resources.cpu_permille), "cpu {}", t.resources.cpu_permille);
-    let imu = t.queues.iter().find(|q| q.queue.as_str() == "imu").unwrap();
-    assert_eq!(imu.dropped, 0);
+    let filter_queue = t.queues.iter().find(|q| q.queue.as_str() == "filter").unwrap();
+    assert_eq!((filter_queue.depth, filter_queue.capacity, filter_queue.dropped), (7, 512, 0));
+    assert!(t.queues.iter().all(|q| q.queue.as_str() != "vision"), "vision reported no queue");
+    // The state says the last odometry result applied was captured 300 ms before it.
+    assert!((300..=400).contains(&t.filter.vo_age_ms), "VO age {} ms", t.filter.vo_age_ms);
     let link = t.links.iter().find(|l| l.link.as_str() == "ground").unwrap();
     assert!(link.tx_bytes > 0 && link.tx_rate_bps > 0);
     let pose = ground.poses.last().unwrap();

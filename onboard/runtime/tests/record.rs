@@ -80,6 +80,7 @@ fn one_of_each() -> Vec<OwnedMessage> {
             imu_lost: 1,
             frame_id: 4,
             status: FilterStateMsg::RUNNING,
+            last_vo_capture_ns: FilterStateMsg::NEVER,
         }),
         OwnedMessage::FrameSwitchRequest(FrameSwitchRequestMsg { stamp_ns: 10, frame_id: 4, reserved: 0 }),
         OwnedMessage::FrameSwitch(FrameSwitchMsg {
@@ -109,6 +110,10 @@ fn one_of_each() -> Vec<OwnedMessage> {
             process_rss_bytes: 10 << 20,
             process: msgs::ProcessKind::Filter as u32,
             task: 0,
+            queue_topic: 0,
+            queue_depth_max: 0,
+            queue_capacity: 0,
+            reserved: 0,
         }),
     ]
 }
@@ -286,6 +291,7 @@ impl Node for YawCounter {
             imu_lost: 0,
             frame_id: 0,
             status: FilterStateMsg::RUNNING,
+            last_vo_capture_ns: FilterStateMsg::NEVER,
         };
         out.publish(Message::FilterState(&state))
     }

@@ -36,8 +36,8 @@ fn main() {
     let mut frame = StereoFrame::default();
     let mut inputs = Vec::new();
     while inputs.len() < FRAMES {
-        match source.next_event(&mut frame).unwrap() {
-            Some(SensorEvent::Stereo) => {
+        match hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
+            Some(SensorEvent::Stereo(_)) => {
                 inputs.push((frame.left.clone(), frame.right.clone(), world.t_world_cam(0, frame.stamp_ns).unwrap()));
             }
             Some(_) => {}

@@ -42,8 +42,8 @@ fn main() {
     let mut frame = StereoFrame::default();
     let mut frames = Vec::new();
     while frames.len() < FRAMES {
-        match source.next_event(&mut frame).unwrap() {
-            Some(SensorEvent::Stereo) if frame.sequence >= SKIP => frames.push(frame.clone()),
+        match hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
+            Some(SensorEvent::Stereo(_)) if frame.sequence >= SKIP => frames.push(frame.clone()),
             Some(_) => {}
             None => break,
         }

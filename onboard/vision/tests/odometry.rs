@@ -256,8 +256,8 @@ fn run_sim(duration_s: f64, pan_sweep: bool) -> SimRun {
     let mut frame = StereoFrame::default();
     let mut run = SimRun { outputs: Vec::new(), truth: Vec::new(), standing: Vec::new(), nees: Vec::new() };
     let mut t_world_body0 = None;
-    while let Some(event) = source.next_event(&mut frame).unwrap() {
-        if event != SensorEvent::Stereo {
+    while let Some(event) = hal::sensor::next_event_with_frame(&mut source, &mut frame).unwrap() {
+        if !matches!(event, SensorEvent::Stereo(_)) {
             continue;
         }
         let gt = source.ground_truth(frame.stamp_ns).unwrap().state.t_world_body;

@@ -21,18 +21,13 @@
 //! The CRC is what makes a frame trustworthy: serial radios deliver bit errors, and COBS alone
 //! would turn most of them into a well-formed but wrong packet.
 
-use crc::{CRC_32_ISO_HDLC, Crc, Table};
-
 use super::FrameError;
+use crate::crc::CRC32;
 
 /// Frame delimiter; COBS guarantees it occurs nowhere else.
 pub const DELIMITER: u8 = 0x00;
 /// Bytes of the CRC-32 appended to each packet.
 pub const CRC_BYTES: usize = 4;
-
-// Slice-by-16 tables (16 KiB) make the CRC ~5x faster than byte-wise tables; a rover's compute
-// board has the memory, and the serial path is the one where CPU per byte matters most.
-const CRC32: Crc<u32, Table<16>> = Crc::<u32, Table<16>>::new(&CRC_32_ISO_HDLC);
 
 /// Longest run of non-zero bytes one COBS block carries (its code byte is then `0xFF`).
 const MAX_BLOCK_DATA: usize = 254;

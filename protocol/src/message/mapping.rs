@@ -64,10 +64,12 @@ impl MatchAttempt {
     }
 }
 
-/// The frame-switch transform that starts a submap: the new origin in the previous submap's
-/// origin frame, with covariance (the graph's chain factor, thesis §4.1.2).
+/// The link of a submap to the one before it, as the wire carries it: the frame-switch transform
+/// that started the submap (its origin in the previous submap's origin frame) with covariance (the
+/// graph's chain factor, thesis §4.1.2). The filter's `FrameSwitch`, the bus's `FrameSwitchMsg`
+/// and the graph's `SubmapSwitch` are the same event in the other layers.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, MaxSize)]
-pub struct FrameSwitch {
+pub struct SubmapLink {
     pub t_previous_this: Pose3,
     pub covariance: Cov6,
 }
@@ -83,7 +85,7 @@ pub struct SubmapHeader {
     pub started_stamp_ns: u64,
     pub finished_stamp_ns: u64,
     /// `None` for a robot's first submap, which anchors its chain.
-    pub switch: Option<FrameSwitch>,
+    pub switch: Option<SubmapLink>,
     pub encoding: SubmapEncoding,
     pub payload_bytes: u32,
     pub chunk_count: u16,

@@ -10,8 +10,8 @@ use serde::{Serialize, de::DeserializeOwned};
 
 pub use command::{Command, CommandAck, CommandKind, CommandOutcome, ParamName, ParamValue};
 pub use mapping::{
-    Constraint, ConstraintId, ConstraintKind, FrameSwitch, MatchAttempt, MatchOutcome, SUBMAP_CHUNK_BYTES, SubmapChunk,
-    SubmapEncoding, SubmapHeader,
+    Constraint, ConstraintId, ConstraintKind, MatchAttempt, MatchOutcome, SUBMAP_CHUNK_BYTES, SubmapChunk,
+    SubmapEncoding, SubmapHeader, SubmapLink,
 };
 pub use state::{
     ClassBytes, FilterHealth, FilterStatus, Heartbeat, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage,

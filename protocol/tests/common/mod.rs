@@ -227,7 +227,7 @@ pub fn match_attempt() -> impl Strategy<Value = MatchAttempt> {
 
 pub fn submap_header() -> impl Strategy<Value = SubmapHeader> {
     let switch = proptest::option::of(
-        (pose(), cov()).prop_map(|(t_previous_this, covariance)| FrameSwitch { t_previous_this, covariance }),
+        (pose(), cov()).prop_map(|(t_previous_this, covariance)| SubmapLink { t_previous_this, covariance }),
     );
     (submap(), any::<u64>(), any::<u64>(), switch, any::<u8>(), any::<u32>(), any::<u16>(), any::<u32>()).prop_map(
         |(submap, started_stamp_ns, finished_stamp_ns, switch, encoding, payload_bytes, chunk_count, payload_crc32)| {

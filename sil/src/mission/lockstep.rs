@@ -85,6 +85,9 @@ pub fn robot_stack(
     links.push(LinkConfig::ground(GROUND_LINK, hal_datagram(), GROUND_RATE_BYTES_PER_S));
     let mut comms_config = CommsConfig::new(RobotId(robot_id(robot) as u8), links);
     comms_config.boot_id = robot_id(robot).into();
+    comms_config.initial_mode = config.robot.mode.mode();
+    comms_config.cpu_cores = onboard::task::usage::board_cores();
+    comms_config.board_memory_kib = onboard::task::usage::board_memory_kib();
     if let Some(key) = &options.ground_key {
         comms_config =
             comms_config.with_key_file(key).map_err(|e| MissionError::Setup(format!("--ground-key: {e}")))?;

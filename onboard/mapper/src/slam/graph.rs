@@ -15,7 +15,7 @@ use super::covariance;
 use super::ids::{NodeId, PoseId, RobotId, SubmapId};
 use super::ledger::MatchLedger;
 use super::measurements::{
-    FilterPose, FrameSwitchMsg, LandmarkObservation, MatchAttempt, Measurement, RobotDetection, SubmapMatch,
+    FilterPose, LandmarkObservation, MatchAttempt, Measurement, RobotDetection, SubmapMatch, SubmapSwitch,
 };
 use super::pose_buffer::PoseBuffer;
 use super::sequential::{Chain, ChainError};
@@ -127,7 +127,7 @@ pub struct TeamGraph {
     isam: Isam,
     pub(crate) buffers: BTreeMap<RobotId, PoseBuffer>,
     /// Frame switches received, by the submap they start.
-    pub(crate) switches: BTreeMap<SubmapId, FrameSwitchMsg>,
+    pub(crate) switches: BTreeMap<SubmapId, SubmapSwitch>,
     /// Submaps referenced by any measurement.
     pub(crate) submaps: BTreeMap<SubmapId, ()>,
     detections: BTreeMap<DetectionKey, RobotDetection>,
@@ -140,7 +140,7 @@ pub struct TeamGraph {
     pub(crate) pose_nodes: BTreeMap<PoseId, FilterPose>,
     pub(crate) chains: BTreeMap<RobotId, Chain>,
     /// Switches a sequential chain could not take yet (their predecessor is missing).
-    held_switches: BTreeMap<SubmapId, FrameSwitchMsg>,
+    held_switches: BTreeMap<SubmapId, SubmapSwitch>,
     online: Vec<(u64, Isometry3<f64>)>,
     pub(crate) dropped_out_of_order: usize,
 }
@@ -221,7 +221,7 @@ impl TeamGraph {
     /// Any measurement.
     pub fn insert(&mut self, measurement: &Measurement) -> InsertOutcome {
         match measurement {
-            Measurement::FrameSwitch(m) => self.insert_switch(m),
+            Measurement::SubmapSwitch(m) => self.insert_switch(m),
             Measurement::FilterPose(m) => self.insert_filter_pose(m),
             Measurement::Detection(m) => self.insert_detection(m),
             Measurement::Landmark(m) => self.insert_landmark_observation(m),
@@ -231,7 +231,7 @@ impl TeamGraph {
     }
 
     /// A frame switch: the next submap origin of its robot and the factor `w` to it.
-    pub fn insert_switch(&mut self, switch: &FrameSwitchMsg) -> InsertOutcome {
+    pub fn insert_switch(&mut self, switch: &SubmapSwitch) -> InsertOutcome {
         if !covariance::is_psd(&switch.covariance) {
             return InsertOutcome::Rejected("frame switch covariance is not a covariance");
         }

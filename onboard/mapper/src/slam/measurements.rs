@@ -7,10 +7,12 @@ use nalgebra::{Isometry3, Matrix6};
 
 use super::ids::{RobotId, SubmapId, SubmapPair};
 
-/// A filter frame switch of `robot` (thesis §3.4): submap `from_index + 1` starts at `stamp_ns`;
-/// `t_old_new` is its origin in submap `from_index`'s frame (x, y, z, yaw; roll = pitch = 0).
+/// A submap switch of `robot`, the graph's view of its filter's frame switch (thesis §3.4):
+/// submap `from_index + 1` starts at `stamp_ns`; `t_old_new` is its origin in submap
+/// `from_index`'s frame (x, y, z, yaw, roll = pitch = 0, with an IMU; in full 6-DoF from a robot
+/// without one, whose odometry chain has no gravity to level against).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameSwitchMsg {
+pub struct SubmapSwitch {
     pub robot: RobotId,
     pub stamp_ns: u64,
     pub from_index: u32,
@@ -18,7 +20,7 @@ pub struct FrameSwitchMsg {
     pub covariance: Matrix6<f64>,
 }
 
-impl FrameSwitchMsg {
+impl SubmapSwitch {
     pub fn from(&self) -> SubmapId {
         SubmapId::new(self.robot, self.from_index)
     }
@@ -87,7 +89,7 @@ pub struct MatchAttempt {
 /// Any input of the front-end, for queues and links that carry all kinds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Measurement {
-    FrameSwitch(FrameSwitchMsg),
+    SubmapSwitch(SubmapSwitch),
     FilterPose(FilterPose),
     Detection(RobotDetection),
     Landmark(LandmarkObservation),
@@ -99,7 +101,7 @@ impl Measurement {
     /// The time the measurement refers to, if it refers to one (matches relate maps, not times).
     pub fn stamp_ns(&self) -> Option<u64> {
         match self {
-            Measurement::FrameSwitch(m) => Some(m.stamp_ns),
+            Measurement::SubmapSwitch(m) => Some(m.stamp_ns),
             Measurement::FilterPose(m) => Some(m.stamp_ns),
             Measurement::Detection(m) => Some(m.stamp_ns),
             Measurement::Landmark(m) => Some(m.stamp_ns),

@@ -12,7 +12,7 @@ use nalgebra::{Isometry3, Matrix6};
 
 use super::covariance;
 use super::ids::{NodeId, RobotId, SubmapId};
-use super::measurements::{FilterPose, FrameSwitchMsg};
+use super::measurements::{FilterPose, SubmapSwitch};
 
 /// A node on a robot's chain, with the filter's pose of it in the submap active then.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,7 +86,7 @@ impl Chain {
     }
 
     /// From the chain's end to the next submap origin (the frame switch).
-    pub fn append_switch(&mut self, switch: &FrameSwitchMsg, floor: f64) -> Result<Link, ChainError> {
+    pub fn append_switch(&mut self, switch: &SubmapSwitch, floor: f64) -> Result<Link, ChainError> {
         let end = *self.end();
         if switch.from_index != end.submap_index || switch.stamp_ns < end.stamp_ns {
             return Err(ChainError::OutOfOrder);

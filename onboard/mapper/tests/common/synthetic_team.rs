@@ -4,7 +4,7 @@
 //! No rendering: these tests are about what enters the graph, not about vision.
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
-use mapper::slam::{FilterPose, FrameSwitchMsg, Measurement, RobotDetection, RobotId, SubmapId, SubmapMatch};
+use mapper::slam::{FilterPose, Measurement, RobotDetection, RobotId, SubmapId, SubmapMatch, SubmapSwitch};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
 /// A small deterministic generator (splitmix64 + Box–Muller).
@@ -55,7 +55,7 @@ pub struct RobotRun {
     pub stamps_ns: Vec<u64>,
     pub truth: Vec<Isometry3<f64>>,
     pub poses: Vec<FilterPose>,
-    pub switches: Vec<FrameSwitchMsg>,
+    pub switches: Vec<SubmapSwitch>,
     /// True origin of every submap, by index.
     pub true_origins: Vec<Isometry3<f64>>,
 }
@@ -108,7 +108,7 @@ pub fn robot_run(robot: RobotId, centre: [f64; 2], radius_m: f64, phase: f64, st
         if since_m >= SUBMAP_LENGTH_M {
             // Frame switch: the new origin is the estimated body, gravity-aligned.
             let t_old_new = gravity_aligned(&t_origin_body);
-            switches.push(FrameSwitchMsg {
+            switches.push(SubmapSwitch {
                 robot,
                 stamp_ns: stamps_ns[i],
                 from_index: index,
@@ -222,7 +222,7 @@ pub fn all_measurements(
             out.push((p.stamp_ns, Measurement::FilterPose(*p)));
         }
         for s in &run.switches {
-            out.push((s.stamp_ns, Measurement::FrameSwitch(*s)));
+            out.push((s.stamp_ns, Measurement::SubmapSwitch(*s)));
         }
     }
     for d in detections {
@@ -238,7 +238,7 @@ pub fn all_measurements(
         out.push((finished(m.a).max(finished(m.b)), Measurement::Match(*m)));
     }
     // A frame switch reaches the graph before the first filter pose of the new frame.
-    out.sort_by_key(|(t, m)| (*t, !matches!(m, Measurement::FrameSwitch(_))));
+    out.sort_by_key(|(t, m)| (*t, !matches!(m, Measurement::SubmapSwitch(_))));
     out
 }
 

@@ -87,7 +87,7 @@ use msgs::{DisparityHeader, DisparityPixel, StereoHeader, TeamHeader};
 
 use crate::nodes::{Message, NodeError, Topic};
 
-pub use ports::{BusInbox, BusOutbox, PublishCounters, TopicCounters};
+pub use ports::{BusInbox, BusOutbox, PublishCounters, QueuePeak, TopicCounters};
 
 /// The iceoryx2 service flavour: inter-process, ports usable from any thread.
 type Ipc = ipc_threadsafe::Service;
@@ -106,62 +106,12 @@ impl ImageGeometry {
     }
 }
 
-/// What a full subscriber buffer does with a new sample (see the module table).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Overflow {
-    /// Safe overflow: the newest sample replaces the oldest unread one.
-    DropOldest,
-    /// The new sample is not delivered to that subscriber; the publisher counts it.
-    DiscardNewest,
-}
+pub use crate::topics::{Overflow, TopicQos};
 
-/// The iceoryx2 settings of one topic's service.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct TopicQos {
-    pub subscriber_buffer: usize,
-    /// Samples a subscriber may hold at once (one drain round).
-    pub subscriber_borrow: usize,
-    pub history: usize,
-    pub max_publishers: usize,
-    pub max_subscribers: usize,
-    pub overflow: Overflow,
-}
-
-/// The settings of every topic; the reasons are in the module documentation's table.
+/// The settings of `topic` (the registry's, [`crate::topics::TOPICS`]); the reasons are in the
+/// module documentation's table.
 pub fn qos(topic: Topic) -> TopicQos {
-    let discard = |buffer: usize| TopicQos {
-        subscriber_buffer: buffer,
-        subscriber_borrow: buffer,
-        history: 0,
-        max_publishers: 2,
-        max_subscribers: 4,
-        overflow: Overflow::DiscardNewest,
-    };
-    match topic {
-        Topic::Imu => TopicQos { history: 256, ..discard(512) },
-        Topic::WheelOdom => discard(64),
-        Topic::Stereo => TopicQos {
-            subscriber_buffer: 2,
-            subscriber_borrow: 2,
-            history: 0,
-            max_publishers: 2,
-            max_subscribers: 3,
-            overflow: Overflow::DropOldest,
-        },
-        Topic::Disparity => TopicQos {
-            subscriber_buffer: 4,
-            subscriber_borrow: 2,
-            history: 0,
-            max_publishers: 2,
-            max_subscribers: 3,
-            overflow: Overflow::DropOldest,
-        },
-        Topic::VoDelta | Topic::Marker => discard(16),
-        Topic::FilterState => TopicQos { overflow: Overflow::DropOldest, ..discard(256) },
-        Topic::FrameSwitchRequest | Topic::FrameSwitch => discard(8),
-        Topic::ToComms | Topic::ToMapper => discard(64),
-        Topic::TaskStats => TopicQos { max_publishers: 8, overflow: Overflow::DropOldest, ..discard(16) },
-    }
+    topic.qos()
 }
 
 /// Why the bus could not be set up or used.

@@ -276,6 +276,79 @@ impl BusOutbox {
 }
 
 impl Outbox for BusOutbox {
+    /// The pair is written into a loaned shared-memory sample, then sent: the one and only time
+    /// its bytes are written.
+    fn publish_stereo_with(
+        &mut self,
+        header: &StereoHeader,
+        fill: &mut dyn FnMut(&mut [u8]) -> Result<(), NodeError>,
+    ) -> Result<(), NodeError> {
+        let topic = Topic::Stereo;
+        let len = crate::nodes::stereo_len(header)?;
+        let Some(out) = self.ports[topic_index(topic)].as_mut() else {
+            return Err(NodeError::Publish { topic, reason: "this outbox has no publisher for the topic".to_owned() });
+        };
+        let Pub::Stereo(port) = &out.port else {
+            return Err(NodeError::Publish { topic, reason: "publisher and message types differ".to_owned() });
+        };
+        let mut sample = match port.loan_slice(len) {
+            Ok(sample) => sample,
+            Err(e) => {
+                out.counters.failed += 1;
+                return Err(NodeError::Publish { topic, reason: format!("loan of {len} bytes: {e:?}") });
+            }
+        };
+        *sample.user_header_mut() = *header;
+        // An error here drops the sample unsent: the loan goes back to the publisher.
+        fill(sample.payload_mut())?;
+        match sample.send() {
+            Ok(reached) => {
+                out.counters.sent += 1;
+                out.counters.deliveries += reached as u64;
+                Ok(())
+            }
+            Err(e) => {
+                out.counters.failed += 1;
+                Err(NodeError::Publish { topic, reason: format!("send: {e:?}") })
+            }
+        }
+    }
+
+    /// Each pixel is written once, straight into a loaned shared-memory sample.
+    fn publish_disparity_with(
+        &mut self,
+        header: &DisparityHeader,
+        pixel: &dyn Fn(usize) -> DisparityPixel,
+    ) -> Result<(), NodeError> {
+        let topic = Topic::Disparity;
+        let len = crate::nodes::disparity_len(header)?;
+        let Some(out) = self.ports[topic_index(topic)].as_mut() else {
+            return Err(NodeError::Publish { topic, reason: "this outbox has no publisher for the topic".to_owned() });
+        };
+        let Pub::Disparity(port) = &out.port else {
+            return Err(NodeError::Publish { topic, reason: "publisher and message types differ".to_owned() });
+        };
+        let mut sample = match port.loan_slice_uninit(len) {
+            Ok(sample) => sample,
+            Err(e) => {
+                out.counters.failed += 1;
+                return Err(NodeError::Publish { topic, reason: format!("loan of {len} pixels: {e:?}") });
+            }
+        };
+        *sample.user_header_mut() = *header;
+        match sample.write_from_fn(pixel).send() {
+            Ok(reached) => {
+                out.counters.sent += 1;
+                out.counters.deliveries += reached as u64;
+                Ok(())
+            }
+            Err(e) => {
+                out.counters.failed += 1;
+                Err(NodeError::Publish { topic, reason: format!("send: {e:?}") })
+            }
+        }
+    }
+
     fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
         let topic = message.topic();
         let Some(out) = self.ports[topic_index(topic)].as_mut() else {
@@ -433,11 +506,31 @@ fn sequence_of(message: &Message<'_>) -> Option<u64> {
     }
 }
 
+/// The fullest receive queue of a process over a span: the samples waiting in one topic's
+/// subscriber buffer when a drain found them, against the buffer's capacity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QueuePeak {
+    pub topic: Topic,
+    pub depth: u32,
+    pub capacity: u32,
+}
+
+impl QueuePeak {
+    fn fuller_than(&self, other: &QueuePeak) -> bool {
+        // depth / capacity compared without division.
+        u64::from(self.depth) * u64::from(other.capacity.max(1))
+            > u64::from(other.depth) * u64::from(self.capacity.max(1))
+    }
+}
+
 /// A process's subscribers, drained once per task release.
 pub struct BusInbox {
     subs: Vec<(Topic, Sub)>,
     counters: [TopicCounters; TOPICS],
     last_sequence: [Option<u64>; TOPICS],
+    /// Samples taken per topic in the current drain (its queue depth when the drain began).
+    drained: [u32; TOPICS],
+    peak: Option<QueuePeak>,
     /// Reused across drains so a warmed-up drain does not allocate.
     held: Vec<Held>,
     order: Vec<(u64, u8, usize)>,
@@ -457,6 +550,8 @@ impl BusInbox {
             subs,
             counters: [TopicCounters::default(); TOPICS],
             last_sequence: [None; TOPICS],
+            drained: [0; TOPICS],
+            peak: None,
             held: Vec::with_capacity(capacity),
             order: Vec::with_capacity(capacity),
         })
@@ -507,6 +602,7 @@ impl BusInbox {
     /// rejected and skipped. On a handler error the rest of the round is released unhandled.
     pub fn drain(&mut self, handler: &mut dyn FnMut(Message<'_>) -> Result<(), NodeError>) -> Result<usize, BusError> {
         let mut handed = 0;
+        self.drained = [0; TOPICS];
         for _ in 0..MAX_DRAIN_ROUNDS {
             let more = self.receive_round()?;
             let result = self.hand_over(handler);
@@ -517,7 +613,22 @@ impl BusInbox {
                 break;
             }
         }
+        for &(topic, _) in &self.subs {
+            let seen = QueuePeak {
+                topic,
+                depth: self.drained[topic_index(topic)],
+                capacity: u32::try_from(qos(topic).subscriber_buffer).unwrap_or(u32::MAX),
+            };
+            if self.peak.is_none_or(|peak| seen.fuller_than(&peak)) {
+                self.peak = Some(seen);
+            }
+        }
         Ok(handed)
+    }
+
+    /// The fullest queue since the last call (see [`QueuePeak`]); `None` before the first drain.
+    pub fn take_queue_peak(&mut self) -> Option<QueuePeak> {
+        self.peak.take()
     }
 
     /// Fills `held`; true if some topic stopped at its borrow limit with samples left.
@@ -531,6 +642,7 @@ impl BusInbox {
                     Some(held) => {
                         self.held.push(held);
                         taken += 1;
+                        self.drained[topic_index(*topic)] += 1;
                     }
                     None => break,
                 }

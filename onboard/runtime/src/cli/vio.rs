@@ -60,12 +60,15 @@ fn string_value(parser: &mut lexopt::Parser, name: &str) -> Result<String, Strin
     value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
 }
 
+/// A change an option makes to the configuration (applied after `--config` is read).
+type ConfigEdit = Box<dyn FnOnce(&mut RoverConfig)>;
+
 /// Parses `onboard vio`'s options (`Ok(None)`: `--help`).
 pub fn parse_args(args: Vec<OsString>) -> Result<Option<Options>, String> {
     use lexopt::prelude::*;
     let mut parser = lexopt::Parser::from_args(args);
     let (mut dataset, mut config_path, mut output, mut json, mut all_imu) = (None, None, None, false, false);
-    let mut edits: Vec<Box<dyn FnOnce(&mut RoverConfig)>> = Vec::new();
+    let mut edits: Vec<ConfigEdit> = Vec::new();
     while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
         match arg {
             Long("dataset") => dataset = Some(PathBuf::from(string_value(&mut parser, "--dataset")?)),

@@ -222,7 +222,7 @@ mod tests {
 
     #[test]
     fn nearly_unit_quaternions_are_normalized_and_others_refused() {
-        let pose = PoseConfig { translation_m: [0.0; 3], rotation_wxyz: [0.7071, 0.0, 0.7071, 0.0] };
+        let pose = PoseConfig { translation_m: [0.0; 3], rotation_wxyz: [0.60004, 0.0, 0.8, 0.0] };
         let q = pose.to_isometry().unwrap().rotation;
         assert!((q.quaternion().norm() - 1.0).abs() < 1e-15);
         let bad = PoseConfig { rotation_wxyz: [1.0, 0.1, 0.0, 0.0], ..pose };

@@ -181,6 +181,8 @@ pub struct CommsConfig {
     pub telemetry_period_ns: u64,
     /// Cores of the board, to turn process CPU time into load.
     pub cpu_cores: u16,
+    /// The board's memory, KiB (telemetry's `mem_total_kib`; `None`: not known, reported 0).
+    pub board_memory_kib: Option<u64>,
     /// Reliable messages waiting per link for room in the endpoint's windows; beyond, dropped
     /// and counted (the mapper persists what it must not lose and re-sends after restarts).
     pub max_backlog: usize,
@@ -204,6 +206,7 @@ impl CommsConfig {
             heartbeat_period_ns: 1_000_000_000,
             telemetry_period_ns: 1_000_000_000,
             cpu_cores: 1,
+            board_memory_kib: None,
             max_backlog: 2048,
             max_inbox: 256,
             replay_state: None,
@@ -519,7 +522,7 @@ impl CommsNode {
                 None => ReplayGuard::new(),
             },
             replay_state: config.replay_state,
-            feed: ground::GroundFeed::new(config.cpu_cores),
+            feed: ground::GroundFeed::new(config.cpu_cores, config.board_memory_kib),
             mapper_pose_ns: None,
             resend: resend::SubmapStore::new(RESEND_STORE_BYTES),
             last_waypoint: None,

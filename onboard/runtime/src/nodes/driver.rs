@@ -8,9 +8,14 @@
 //!
 //! [`DriverNode::on_tick`] publishes every event stamped at or before `now_ns`, in the source's
 //! order (at equal stamps the source's own order). The source has no look-ahead, so the first
-//! event past `now_ns` is read and held for the next tick.
+//! event past `now_ns` is read and held for the next tick; a held pair is only announced, its
+//! pixels are rendered or decoded when it is due.
+//!
+//! A stereo pair is written once: the source renders or decodes it straight into the outbox's
+//! memory ([`Outbox::publish_stereo_with`]: a loaned iceoryx2 sample in the process runner), so
+//! the driver holds no image buffer and copies nothing.
 
-use hal::sensor::{ImuSample, SensorEvent, SensorSource, StereoCalibration, StereoFrame, WheelOdomSample};
+use hal::sensor::{ImuSample, SensorEvent, SensorSource, StereoCalibration, WheelOdomSample};
 use msgs::{ImuMsg, StereoHeader, WheelOdomMsg};
 
 use super::{Message, Node, NodeError, Outbox, Topic};
@@ -39,10 +44,6 @@ pub struct DriverNode {
     source: Box<dyn SensorSource + Send>,
     options: DriverOptions,
     calibration: Option<StereoCalibration>,
-    /// Target of the source; holds the pair of a held stereo event.
-    frame: StereoFrame,
-    /// The stereo payload: left rows, then right rows (capacity kept between frames).
-    stereo_bytes: Vec<u8>,
     /// An event read from the source but not yet due.
     held: Option<SensorEvent>,
     /// The source's stamp of sensor time 0 (its first event's), once known.
@@ -72,8 +73,6 @@ impl DriverNode {
             source,
             options,
             calibration,
-            frame: StereoFrame::default(),
-            stereo_bytes: Vec::new(),
             held: None,
             time_offset_ns: None,
             last_stamp_ns: 0,
@@ -106,12 +105,7 @@ impl DriverNode {
 
     /// An event's stamp in sensor time.
     fn event_stamp_ns(&self, event: &SensorEvent) -> u64 {
-        let source_ns = match event {
-            SensorEvent::Imu(s) => s.stamp_ns,
-            SensorEvent::WheelOdom(s) => s.stamp_ns,
-            SensorEvent::Stereo => self.frame.stamp_ns,
-        };
-        source_ns.saturating_sub(self.time_offset_ns.unwrap_or(0))
+        event.stamp_ns().saturating_sub(self.time_offset_ns.unwrap_or(0))
     }
 
     fn next_event(&mut self) -> Result<Option<SensorEvent>, NodeError> {
@@ -121,18 +115,11 @@ impl DriverNode {
         if self.finished {
             return Ok(None);
         }
-        let Some(event) = self.source.next_event(&mut self.frame).map_err(|e| failed(e.to_string()))? else {
+        let Some(event) = self.source.next_event().map_err(|e| failed(e.to_string()))? else {
             self.finished = true;
             return Ok(None);
         };
-        if self.time_offset_ns.is_none() {
-            let first_ns = match &event {
-                SensorEvent::Imu(s) => s.stamp_ns,
-                SensorEvent::WheelOdom(s) => s.stamp_ns,
-                SensorEvent::Stereo => self.frame.stamp_ns,
-            };
-            self.time_offset_ns = Some(first_ns);
-        }
+        self.time_offset_ns.get_or_insert(event.stamp_ns());
         if self.options.end_stamp_ns.is_some_and(|end| self.event_stamp_ns(&event) > end) {
             self.finished = true;
             return Ok(None);
@@ -160,21 +147,22 @@ impl DriverNode {
                 self.counts.wheel += 1;
                 out.publish(Message::WheelOdom(&message))
             }
-            SensorEvent::Stereo => {
-                let frame = &self.frame;
-                self.stereo_bytes.clear();
-                self.stereo_bytes.extend_from_slice(&frame.left);
-                self.stereo_bytes.extend_from_slice(&frame.right);
+            SensorEvent::Stereo(info) => {
                 let header = StereoHeader {
                     stamp_ns,
-                    sequence: frame.sequence,
-                    pan_rad: frame.pan_rad,
-                    tilt_rad: frame.tilt_rad,
-                    width_px: frame.width_px,
-                    height_px: frame.height_px,
+                    sequence: info.sequence,
+                    pan_rad: info.pan_rad,
+                    tilt_rad: info.tilt_rad,
+                    width_px: info.width_px,
+                    height_px: info.height_px,
                 };
+                let source = &mut self.source;
+                out.publish_stereo_with(&header, &mut |bytes| {
+                    let (left, right) = bytes.split_at_mut(bytes.len() / 2);
+                    source.read_stereo(left, right).map_err(|e| failed(e.to_string()))
+                })?;
                 self.counts.stereo += 1;
-                out.publish(Message::Stereo(&header, &self.stereo_bytes))
+                Ok(())
             }
         }
     }

@@ -166,6 +166,8 @@ pub struct FilterNode {
     chain: odometry_chain::OdometryChain,
     /// The gyro bias the at-rest initialization levelled.
     initial_gyro_bias_radps: Option<Vector3<f64>>,
+    /// Capture stamp of the last odometry result applied (the ground's "VO age").
+    last_vo_capture_ns: Option<u64>,
     init_accel_sum: Vector3<f64>,
     init_gyro_sum: Vector3<f64>,
     init_count: u64,
@@ -193,6 +195,7 @@ impl FilterNode {
             filter: Filter::new(options.filter.clone()),
             chain: odometry_chain::OdometryChain::new(),
             initial_gyro_bias_radps: None,
+            last_vo_capture_ns: None,
             options,
             init_accel_sum: Vector3::zeros(),
             init_gyro_sum: Vector3::zeros(),
@@ -448,6 +451,7 @@ impl FilterNode {
             imu_lost: self.summary.imu_lost,
             frame_id: self.filter.frame_id(),
             status: FilterStateMsg::INITIALIZING,
+            last_vo_capture_ns: FilterStateMsg::NEVER,
         }
     }
 
@@ -466,6 +470,7 @@ impl FilterNode {
             imu_lost: self.summary.imu_lost,
             frame_id: state.frame_id,
             status: FilterStateMsg::RUNNING,
+            last_vo_capture_ns: self.last_vo_capture_ns.unwrap_or(FilterStateMsg::NEVER),
         }
     }
 
@@ -495,7 +500,10 @@ impl FilterNode {
         }
         let result = self.filter.update_relative_pose(measurement);
         match self.count_filter_result(result) {
-            Some(UpdateOutcome::Applied { .. }) => self.summary.vo_updates_applied += 1,
+            Some(UpdateOutcome::Applied { .. }) => {
+                self.summary.vo_updates_applied += 1;
+                self.last_vo_capture_ns = Some(pending.capture_ns);
+            }
             Some(UpdateOutcome::Rejected { .. }) => self.summary.vo_updates_rejected += 1,
             Some(UpdateOutcome::MissingClone) => self.summary.vo_updates_missing_clone += 1,
             None => {}
@@ -670,6 +678,7 @@ impl FilterNode {
                 self.summary.initialized_ns.get_or_insert(vo.capture_stamp_ns);
                 if vo.flags & VoDeltaMsg::HAS_DELTA != 0 {
                     self.summary.vo_updates_applied += 1;
+                    self.last_vo_capture_ns = Some(vo.capture_stamp_ns);
                 }
                 let state = self.chain.push(&input);
                 out.publish(Message::FilterState(&self.chain_message(&state)))
@@ -713,6 +722,7 @@ impl FilterNode {
             imu_lost: 0,
             frame_id: state.frame_id,
             status: FilterStateMsg::RUNNING,
+            last_vo_capture_ns: self.last_vo_capture_ns.unwrap_or(FilterStateMsg::NEVER),
         }
     }
 }

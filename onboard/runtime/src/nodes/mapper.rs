@@ -18,7 +18,6 @@
 //! submap, every received submap and the whole graph again, plus its online trajectory; the
 //! unfinished current submap is lost (its images are not journaled).
 
-mod crc;
 pub mod journal;
 mod wire;
 
@@ -33,15 +32,12 @@ use mapper::Submap;
 use mapper::global::{GlobalMap, GlobalMapConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
 use mapper::slam::{
-    self, FilterPose, FrameSwitchMsg, GraphSize, InsertOutcome, Measurement, NodeId, SubmapPair, TeamEstimate,
-    TeamGraph, TeamGraphConfig,
+    self, FilterPose, FramePose, GraphSize, InsertOutcome, Measurement, NodeId, PoseBuffer, SameStamp, SubmapPair,
+    SubmapSwitch, TeamEstimate, TeamGraph, TeamGraphConfig,
 };
 use mapper::submap::{SubmapPolicy, Submapper};
-use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg as BusFrameSwitch, FrameSwitchRequestMsg,
-    TeamHeader,
-};
-use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3};
+use msgs::{DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, TeamHeader};
+use nalgebra::{Isometry3, Matrix3, Matrix6};
 use protocol::message::{ConstraintId, SubmapEncoding, SubmapHeader};
 use protocol::{AnyMessage, MAX_PACKET_BYTES, NodeId as WireNode, RobotId as WireRobot, SubmapId as WireSubmap};
 use vision::depth::{DepthImage, StereoGeometry};
@@ -179,16 +175,6 @@ pub struct MapperOutputs {
     pub counters: MapperCounters,
 }
 
-/// One filter state of the ring.
-#[derive(Debug, Clone, Copy)]
-struct State {
-    stamp_ns: u64,
-    frame_id: u32,
-    t_local_body: Isometry3<f64>,
-    /// Filter convention.
-    covariance: Matrix6<f64>,
-}
-
 /// An own finished submap on its way to comms.
 #[derive(Debug)]
 struct Outgoing {
@@ -209,7 +195,8 @@ pub struct MapperNode {
     /// Finished submaps (own and received) whose graph pose is not known yet.
     unplaced: BTreeMap<slam::SubmapId, Arc<Submap>>,
     own_finished: BTreeMap<u32, Arc<Submap>>,
-    states: VecDeque<State>,
+    /// Recent filter states (pose in the local frame, filter-convention covariance).
+    states: PoseBuffer<FramePose>,
     /// The switch into the current submap: `(new frame id, t_old_new)`.
     last_switch: Option<(u32, Isometry3<f64>)>,
     ahead_since_ns: Option<u64>,
@@ -274,7 +261,7 @@ impl MapperNode {
             global: GlobalMap::new(config.global),
             unplaced: BTreeMap::new(),
             own_finished: BTreeMap::new(),
-            states: VecDeque::with_capacity(config.state_ring_len),
+            states: PoseBuffer::bounded(config.state_ring_len, SameStamp::KeepFirst),
             last_switch: None,
             ahead_since_ns: None,
             requested_frame: None,
@@ -335,7 +322,7 @@ impl MapperNode {
                         self.submapper.on_frame_switch(&switch);
                         self.last_switch = Some((switch.new_frame_id, t_old_new));
                     }
-                    self.insert(&Measurement::FrameSwitch(self.graph_switch(&switch)));
+                    self.insert(&Measurement::SubmapSwitch(self.graph_switch(&switch)));
                 }
                 Record::OwnPose { stamp_ns, submap_index, t_submap_body, covariance } => {
                     let pose = FilterPose { robot: self.own, stamp_ns, submap_index, t_submap_body, covariance };
@@ -420,7 +407,7 @@ impl MapperNode {
     /// match attempt): into the graph, and to the peers as a protocol `Constraint` or
     /// `MatchAttempt`. The own filter pose at a detection's stamp is entered and sent with it.
     pub fn insert_measurement(&mut self, m: &Measurement, out: &mut dyn Outbox) -> Result<InsertOutcome, NodeError> {
-        let stamp_ns = m.stamp_ns().unwrap_or_else(|| self.states.back().map_or(0, |s| s.stamp_ns));
+        let stamp_ns = m.stamp_ns().unwrap_or_else(|| self.states.latest().map_or(0, |s| s.stamp_ns));
         match m {
             Measurement::Detection(d) if d.observer == self.own || d.observed == self.own => {
                 self.ensure_own_pose(d.stamp_ns, out)?;
@@ -500,8 +487,8 @@ impl MapperNode {
         })
     }
 
-    fn graph_switch(&self, switch: &filter::FrameSwitch) -> FrameSwitchMsg {
-        FrameSwitchMsg {
+    fn graph_switch(&self, switch: &filter::FrameSwitch) -> SubmapSwitch {
+        SubmapSwitch {
             robot: self.own,
             stamp_ns: switch.stamp_ns,
             from_index: switch.old_frame_id,
@@ -617,8 +604,8 @@ impl MapperNode {
                 robot: self.own,
                 stamp_ns,
                 submap_index: s.frame_id,
-                t_submap_body: s.t_local_body,
-                covariance: slam::covariance::from_filter(&s.t_local_body, &s.covariance),
+                t_submap_body: s.pose,
+                covariance: slam::covariance::from_filter(&s.pose, &s.covariance),
             })
         });
         if let Some(pose) = pose {
@@ -629,28 +616,9 @@ impl MapperNode {
 
     /// The filter state at `stamp_ns`: exact, or interpolated between neighbours of one frame no
     /// more than `max_interpolation_gap_ns` apart.
-    fn state_at(&self, stamp_ns: u64) -> Option<State> {
-        let i = self.states.partition_point(|s| s.stamp_ns < stamp_ns);
-        let after = self.states.get(i)?;
-        if after.stamp_ns == stamp_ns {
-            return Some(*after);
-        }
-        let before = self.states.get(i.checked_sub(1)?)?;
-        if before.frame_id != after.frame_id || after.stamp_ns - before.stamp_ns > self.config.max_interpolation_gap_ns
-        {
-            return None;
-        }
-        let f = (stamp_ns - before.stamp_ns) as f64 / (after.stamp_ns - before.stamp_ns) as f64;
-        let (a, b) = (&before.t_local_body, &after.t_local_body);
-        Some(State {
-            stamp_ns,
-            frame_id: after.frame_id,
-            t_local_body: Isometry3::from_parts(
-                Translation3::from(a.translation.vector.lerp(&b.translation.vector, f)),
-                a.rotation.slerp(&b.rotation, f),
-            ),
-            covariance: after.covariance,
-        })
+    /// The filter state at `stamp_ns`, exact or interpolated (see [`PoseBuffer::lookup`]).
+    fn state_at(&self, stamp_ns: u64) -> Option<FramePose> {
+        self.states.lookup(stamp_ns, self.config.max_interpolation_gap_ns)
     }
 
     /// Advances the submapper to `frame_id` without switch transforms (their messages were lost):
@@ -681,14 +649,11 @@ impl MapperNode {
             self.counters.states_rejected += 1;
             return Ok(());
         };
-        if self.states.back().is_some_and(|s| s.stamp_ns >= m.stamp_ns) {
+        if self.states.latest().is_some_and(|s| s.stamp_ns >= m.stamp_ns) {
             self.counters.states_rejected += 1;
             return Ok(());
         }
-        if self.states.len() >= self.config.state_ring_len {
-            self.states.pop_front();
-        }
-        self.states.push_back(State { stamp_ns: m.stamp_ns, frame_id: m.frame_id, t_local_body, covariance });
+        self.states.insert(FramePose { stamp_ns: m.stamp_ns, frame_id: m.frame_id, pose: t_local_body, covariance });
         self.integrate_parked();
         let current = self.submapper.current().index;
         if m.frame_id > current {
@@ -755,7 +720,7 @@ impl MapperNode {
         self.labels.flags.clear();
         self.labels.flags.extend(pixels.iter().map(|p| p.labels));
         let image = ParkedImage { stamp_ns: h.stamp_ns, pan_rad: h.pan_rad, tilt_rad: h.tilt_rad };
-        if self.states.back().is_none_or(|newest| newest.stamp_ns < h.stamp_ns) {
+        if self.states.latest().is_none_or(|newest| newest.stamp_ns < h.stamp_ns) {
             // Its state is still to come.
             self.parked = Some(image);
             return;
@@ -773,7 +738,7 @@ impl MapperNode {
     /// The parked image, once a state at or after its capture exists.
     fn integrate_parked(&mut self) {
         if let Some(image) = self.parked
-            && self.states.back().is_some_and(|newest| newest.stamp_ns >= image.stamp_ns)
+            && self.states.latest().is_some_and(|newest| newest.stamp_ns >= image.stamp_ns)
         {
             self.parked = None;
             self.integrate(image);
@@ -789,12 +754,12 @@ impl MapperNode {
         };
         let current = self.submapper.current().index;
         let t_local_body = if state.frame_id == current {
-            state.t_local_body
+            state.pose
         } else {
             // Captured just before the switch into the current frame: carried across it.
             match self.last_switch {
                 Some((new_frame, t_old_new)) if new_frame == current && state.frame_id + 1 == current => {
-                    t_old_new.inverse() * state.t_local_body
+                    t_old_new.inverse() * state.pose
                 }
                 _ => {
                     self.counters.images_frame_mismatch += 1;
@@ -810,8 +775,8 @@ impl MapperNode {
             robot: self.own,
             stamp_ns: image.stamp_ns,
             submap_index: state.frame_id,
-            t_submap_body: state.t_local_body,
-            covariance: slam::covariance::from_filter(&state.t_local_body, &state.covariance),
+            t_submap_body: state.pose,
+            covariance: slam::covariance::from_filter(&state.pose, &state.covariance),
         };
         self.remember_pose(pose);
         if let Some(t_global_body) = self.graph.online_pose(&pose) {
@@ -820,7 +785,7 @@ impl MapperNode {
         }
     }
 
-    fn on_frame_switch(&mut self, m: &BusFrameSwitch) -> Result<(), NodeError> {
+    fn on_frame_switch(&mut self, m: &FrameSwitchMsg) -> Result<(), NodeError> {
         let current = self.submapper.current().index;
         if m.new_frame_id <= current {
             return Ok(());
@@ -855,7 +820,7 @@ impl MapperNode {
             self.counters.persist_errors += 1;
         }
         self.journal(&Record::OwnSwitch { stamp_ns: m.stamp_ns, from_index: m.old_frame_id, t_old_new, covariance });
-        self.insert(&Measurement::FrameSwitch(self.graph_switch(&switch)));
+        self.insert(&Measurement::SubmapSwitch(self.graph_switch(&switch)));
         self.unplaced.insert(slam::SubmapId::new(self.own, finished.index), Arc::clone(&finished));
         self.outgoing.push_back(Outgoing { index: finished.index, payload: Arc::new(payload), next_chunk: 0 });
         self.own_finished.insert(finished.index, finished);
@@ -979,7 +944,7 @@ impl MapperNode {
                 }
                 match wire::header_switch(h) {
                     Ok(Some(switch)) => {
-                        self.insert(&Measurement::FrameSwitch(switch));
+                        self.insert(&Measurement::SubmapSwitch(switch));
                     }
                     Ok(None) => {}
                     Err(_) => {

@@ -22,84 +22,7 @@ use msgs::{
     StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
 };
 
-/// A bus topic of one robot (DESIGN §4). The iceoryx2 service is `rover/{robot_id}/{path}`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum Topic {
-    Imu,
-    WheelOdom,
-    Stereo,
-    Disparity,
-    VoDelta,
-    Marker,
-    FilterState,
-    FrameSwitchRequest,
-    FrameSwitch,
-    ToComms,
-    ToMapper,
-    TaskStats,
-}
-
-impl Topic {
-    pub const ALL: [Topic; 12] = [
-        Topic::Imu,
-        Topic::WheelOdom,
-        Topic::Stereo,
-        Topic::Disparity,
-        Topic::VoDelta,
-        Topic::Marker,
-        Topic::FilterState,
-        Topic::FrameSwitchRequest,
-        Topic::FrameSwitch,
-        Topic::ToComms,
-        Topic::ToMapper,
-        Topic::TaskStats,
-    ];
-
-    /// Path below `rover/{id}/`.
-    pub fn path(self) -> &'static str {
-        match self {
-            Topic::Imu => "sensors/imu",
-            Topic::WheelOdom => "sensors/wheel_odom",
-            Topic::Stereo => "sensors/stereo",
-            Topic::Disparity => "vision/disparity",
-            Topic::VoDelta => "vision/vo_delta",
-            Topic::Marker => "vision/markers",
-            Topic::FilterState => "filter/state",
-            Topic::FrameSwitchRequest => "mapper/frame_switch_request",
-            Topic::FrameSwitch => "filter/frame_switch",
-            Topic::ToComms => "mapper/to_comms",
-            Topic::ToMapper => "comms/to_mapper",
-            Topic::TaskStats => "telemetry/tasks",
-        }
-    }
-
-    /// The iceoryx2 service name of this topic for one robot.
-    pub fn service_name(self, robot_id: u16) -> String {
-        format!("rover/{robot_id}/{}", self.path())
-    }
-
-    /// Stable number of the topic in recordings (never reused).
-    pub fn code(self) -> u8 {
-        match self {
-            Topic::Imu => 1,
-            Topic::WheelOdom => 2,
-            Topic::Stereo => 3,
-            Topic::Disparity => 4,
-            Topic::VoDelta => 5,
-            Topic::Marker => 6,
-            Topic::FilterState => 7,
-            Topic::FrameSwitchRequest => 8,
-            Topic::FrameSwitch => 9,
-            Topic::ToComms => 10,
-            Topic::ToMapper => 11,
-            Topic::TaskStats => 12,
-        }
-    }
-
-    pub fn from_code(code: u8) -> Option<Topic> {
-        Topic::ALL.into_iter().find(|t| t.code() == code)
-    }
-}
+pub use crate::topics::Topic;
 
 /// One bus message, borrowed: in the process runner the references point into iceoryx2 shared
 /// memory (the sample is read in place), in the lockstep runner into the sender's buffers.
@@ -159,10 +82,62 @@ impl Message<'_> {
 }
 
 /// Where a node's messages go: the bus publisher set (process runner) or the lockstep runner's
-/// delivery queue. Publishing copies the message once (into shared memory, or into the runner's
-/// queue); the node keeps its buffers.
+/// delivery queue. [`Outbox::publish`] copies the message once (into shared memory, or into the
+/// runner's queue); the node keeps its buffers. An image is not copied at all: the driver writes
+/// it straight into the transport's memory with [`Outbox::publish_stereo_with`].
 pub trait Outbox {
     fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError>;
+
+    /// Publishes a stereo pair that `fill` writes in place: it gets the payload (left rows, then
+    /// right rows, `2 · width · height` bytes of `header`) in the memory the readers will read,
+    /// a loaned shared-memory sample on the bus. An error from `fill` publishes nothing.
+    ///
+    /// The provided body is for outboxes without memory of their own (tests, recorders): it
+    /// fills a buffer of its own and publishes that. The runners' outboxes override it.
+    fn publish_stereo_with(
+        &mut self,
+        header: &StereoHeader,
+        fill: &mut dyn FnMut(&mut [u8]) -> Result<(), NodeError>,
+    ) -> Result<(), NodeError> {
+        let len = stereo_len(header)?;
+        let mut bytes = vec![0; len];
+        fill(&mut bytes)?;
+        self.publish(Message::Stereo(header, &bytes))
+    }
+
+    /// Publishes a disparity map whose `width · height` pixels `pixel(i)` gives, written straight
+    /// into the transport's memory (each pixel once). The provided body is for outboxes without
+    /// memory of their own; the runners' outboxes override it.
+    fn publish_disparity_with(
+        &mut self,
+        header: &DisparityHeader,
+        pixel: &dyn Fn(usize) -> DisparityPixel,
+    ) -> Result<(), NodeError> {
+        let pixels: Vec<DisparityPixel> = (0..disparity_len(header)?).map(pixel).collect();
+        self.publish(Message::Disparity(header, &pixels))
+    }
+}
+
+/// The pixel count of a disparity map, `width · height`.
+pub fn disparity_len(header: &DisparityHeader) -> Result<usize, NodeError> {
+    usize::try_from(header.width_px)
+        .ok()
+        .and_then(|w| w.checked_mul(usize::try_from(header.height_px).ok()?))
+        .ok_or_else(|| NodeError::Publish {
+            topic: Topic::Disparity,
+            reason: format!("a {}x{} map does not fit in memory", header.width_px, header.height_px),
+        })
+}
+
+/// The payload length of a stereo pair, `2 · width · height` bytes.
+pub fn stereo_len(header: &StereoHeader) -> Result<usize, NodeError> {
+    usize::try_from(header.width_px)
+        .ok()
+        .and_then(|w| w.checked_mul(usize::try_from(header.height_px).ok()?)?.checked_mul(2))
+        .ok_or_else(|| NodeError::Publish {
+            topic: Topic::Stereo,
+            reason: format!("a {}x{} pair does not fit in memory", header.width_px, header.height_px),
+        })
 }
 
 /// Why a node could not handle a message. Bad data from the bus is counted and skipped by the

@@ -1,9 +1,9 @@
 //! The vision process as a bus node: rectification, SGM, obstacle labels and keyframe stereo
 //! odometry on each stereo pair (the vision half of [`crate::vio::VioPipeline`]).
 //!
-//! On a pair: rectify when the calibration is raw; SGM disparity (`fpga_model`'s fast matcher
-//! with [`vision::depth_sgm_config`], then [`vision::SpeckleFilter`]) always, because the mapper
-//! needs the dense map; depth and obstacle labels with the camera pose
+//! On a pair: rectify when the calibration is raw; SGM disparity and depth always
+//! ([`vision::DepthPipeline`]: the fast matcher with [`vision::depth_sgm_config`], then the speckle
+//! filter), because the mapper needs the dense map; depth and obstacle labels with the camera pose
 //! from the latest filter state (the classifier needs the camera relative to gravity); then one
 //! [`Message::Disparity`] with disparity and labels per pixel.
 //!
@@ -19,15 +19,21 @@
 //!
 //! Bad payloads (slice length not matching the header, another geometry than the calibration,
 //! non-finite poses) are counted and skipped.
+//!
+//! # Zero copy
+//! The pair is matched, and usually tracked, where it arrived: in the process runner the slices
+//! point into the driver's iceoryx2 sample, which neither the matcher nor the odometry copies. A
+//! raw pair is rectified into the node's own buffer (a transformation, not a copy). Only a
+//! rectified pair whose odometry must wait for its filter state is copied out, because the sample
+//! goes back to the bus when the handler returns ([`VisionNodeSummary::pairs_held`]).
 
-use std::collections::VecDeque;
-
-use fpga_model::{DisparityImage, GrayImage, SgmConfig};
+use fpga_model::SgmConfig;
 use hal::sensor::{StereoCalibration, StereoFrame};
+use mapper::slam::{FramePose, PoseBuffer, SameStamp};
 use msgs::{DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, Pose, StereoHeader, VoDeltaMsg};
 use nalgebra::Isometry3;
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
-use vision::{DepthImage, Rectifier, SpeckleFilter, StereoGeometry, StereoOdometry, VoConfig, VoOutput};
+use vision::{DepthOptions, DepthPipeline, Rectifier, StereoOdometry, StereoView, VoConfig, VoError, VoOutput};
 
 use super::{Message, Node, NodeError, Outbox, Topic};
 use crate::vio::VioOptions;
@@ -39,7 +45,6 @@ const STATES_KEPT: usize = 64;
 /// Filter poses at capture stamps kept for the keyframe end of the prior (as the pipeline: more
 /// than 5 keyframes' worth).
 const CAPTURE_POSES_KEPT: usize = 64;
-const INVALID_PIXEL: DisparityPixel = DisparityPixel { disparity_q4: DisparityPixel::INVALID, labels: 0, reserved: 0 };
 
 /// The vision node's configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -107,6 +112,8 @@ pub struct VisionNodeSummary {
     pub frame_switches_missed: u64,
     /// Rectification, SGM or odometry errors on one pair (the pair is skipped).
     pub errors: u64,
+    /// Pairs copied out of their message to wait for their filter state (see the module docs).
+    pub pairs_held: u64,
 }
 
 /// The latest filter state, for the obstacle attitude and the filter status.
@@ -124,29 +131,24 @@ pub struct VisionNode {
     raw_calibration: StereoCalibration,
     calibration: StereoCalibration,
     rectifier: Option<Rectifier>,
-    raw: StereoFrame,
-    /// The rectified pair; holds the pair whose odometry waits for its filter state.
+    /// The rectified pair of a raw camera; holds the pair whose odometry waits for its filter
+    /// state.
     frame: StereoFrame,
     odometry: StereoOdometry,
-    matcher: fpga_model::fast::Matcher,
-    speckle: Option<SpeckleFilter>,
-    sgm_left: GrayImage,
-    sgm_right: GrayImage,
-    disparity: DisparityImage,
-    geometry: StereoGeometry,
-    depth: DepthImage,
+    /// SGM, speckle filter, depth.
+    depth: DepthPipeline,
     classifier: ObstacleClassifier,
     labels: PixelLabels,
-    pixels: Vec<DisparityPixel>,
     /// Capture stamp of the pair in `frame` whose odometry has not run yet.
     pending_capture_ns: Option<u64>,
     latest: Option<LatestState>,
     /// Frame id of the chain, and the current local frame in the chain's first frame.
     frame_id: Option<u32>,
     t_first_local: Isometry3<f64>,
-    /// Recent running filter states `(stamp, t_first_body)`.
-    states: VecDeque<(u64, Isometry3<f64>)>,
-    capture_poses: VecDeque<(u64, Isometry3<f64>)>,
+    /// Recent running filter states (`t_first_body`, the chain's frame).
+    states: PoseBuffer<FramePose>,
+    /// The filter poses (`t_first_body`) at recent captures: the keyframe end of the prior.
+    capture_poses: PoseBuffer<FramePose>,
     keyframe_ns: Option<u64>,
     summary: VisionNodeSummary,
 }
@@ -169,18 +171,9 @@ pub(crate) fn exact_isometry(pose: &Pose) -> Option<Isometry3<f64>> {
     Some(Isometry3::from_parts(normalized.translation, nalgebra::UnitQuaternion::new_unchecked(q)))
 }
 
-fn push_bounded(ring: &mut VecDeque<(u64, Isometry3<f64>)>, capacity: usize, entry: (u64, Isometry3<f64>)) {
-    if let Some(last) = ring.back_mut()
-        && last.0 == entry.0
-    {
-        // A later state of the same stamp (an update after the sample): the newest counts.
-        *last = entry;
-        return;
-    }
-    if ring.len() == capacity {
-        ring.pop_front();
-    }
-    ring.push_back(entry);
+/// A pose of the chained frame (one frame for all: the chain restarts after a missed switch).
+fn chained(stamp_ns: u64, t_first_body: Isometry3<f64>) -> FramePose {
+    FramePose { stamp_ns, frame_id: 0, pose: t_first_body, covariance: nalgebra::Matrix6::zeros() }
 }
 
 impl VisionNode {
@@ -193,34 +186,28 @@ impl VisionNode {
         };
         let rectified = rectifier.as_ref().map_or(*calibration, Rectifier::rectified_calibration);
         let odometry = StereoOdometry::new(options.vo.clone(), &rectified).map_err(|e| failed(e.to_string()))?;
-        let (width, height) = (rectified.left.width_px as usize, rectified.left.height_px as usize);
-        let matcher = fpga_model::fast::Matcher::new(options.sgm, width, height, options.sgm_threads.max(1))
-            .map_err(|e| failed(format!("SGM: {e}")))?;
+        let depth_options =
+            DepthOptions { sgm: options.sgm, despeckle: options.despeckle, threads: options.sgm_threads.max(1) };
+        let depth = DepthPipeline::new(&rectified, depth_options).map_err(|e| failed(format!("depth: {e}")))?;
         let classifier = ObstacleClassifier::new(options.obstacles).map_err(|e| failed(e.to_string()))?;
-        let image = || GrayImage { width, height, pixels: vec![0; width * height] };
+        let mut frame = StereoFrame::default();
+        frame.resize(rectified.left.width_px, rectified.left.height_px);
         Ok(VisionNode {
             raw_calibration: *calibration,
             calibration: rectified,
             rectifier,
-            raw: StereoFrame::default(),
-            frame: StereoFrame::default(),
+            frame,
             odometry,
-            matcher,
-            speckle: options.despeckle.then(|| SpeckleFilter::for_image(width, height)),
-            sgm_left: image(),
-            sgm_right: image(),
-            disparity: DisparityImage { width, height, data: vec![DisparityPixel::INVALID; width * height] },
-            geometry: StereoGeometry::from_calibration(&rectified),
-            depth: DepthImage::new(width, height),
+            depth,
             classifier,
             labels: PixelLabels::default(),
-            pixels: vec![INVALID_PIXEL; width * height],
             pending_capture_ns: None,
             latest: None,
             frame_id: None,
             t_first_local: Isometry3::identity(),
-            states: VecDeque::with_capacity(STATES_KEPT),
-            capture_poses: VecDeque::with_capacity(CAPTURE_POSES_KEPT),
+            // A later state of the same stamp (an update after the sample): the newest counts.
+            states: PoseBuffer::bounded(STATES_KEPT, SameStamp::KeepLatest),
+            capture_poses: PoseBuffer::bounded(CAPTURE_POSES_KEPT, SameStamp::KeepLatest),
             keyframe_ns: None,
             summary: VisionNodeSummary::default(),
             options,
@@ -258,83 +245,96 @@ impl VisionNode {
             self.summary.bad_stereo += 1;
             return Ok(());
         }
-        // The buffers are about to be overwritten: the previous pair waited long enough.
+        // The held pair is about to be replaced: it waited long enough.
         self.run_pending_odometry(out)?;
         self.summary.frames += 1;
-        let target = if self.rectifier.is_some() { &mut self.raw } else { &mut self.frame };
-        target.resize(header.width_px, header.height_px);
-        target.left.copy_from_slice(&bytes[..n]);
-        target.right.copy_from_slice(&bytes[n..]);
-        target.stamp_ns = header.stamp_ns;
-        target.sequence = header.sequence;
-        target.pan_rad = header.pan_rad;
-        target.tilt_rad = header.tilt_rad;
-        if let Some(rectifier) = &self.rectifier
-            && rectifier.rectify(&self.raw, &mut self.frame).is_err()
-        {
+        let (left, right) = bytes.split_at(n);
+        let received = StereoView {
+            stamp_ns: header.stamp_ns,
+            sequence: header.sequence,
+            width_px: header.width_px,
+            height_px: header.height_px,
+            left,
+            right,
+            pan_rad: header.pan_rad,
+            tilt_rad: header.tilt_rad,
+        };
+        let rectified_here = match &self.rectifier {
+            Some(rectifier) => {
+                if rectifier.rectify_view(received, &mut self.frame).is_err() {
+                    self.summary.errors += 1;
+                    return Ok(());
+                }
+                true
+            }
+            None => false,
+        };
+        let pair = if rectified_here { StereoView::of(&self.frame) } else { received };
+        if self.depth.compute(pair.left, pair.right).is_err() {
             self.summary.errors += 1;
             return Ok(());
         }
-        if !self.match_and_classify() {
-            self.summary.errors += 1;
-            return Ok(());
-        }
+        self.classify(header.pan_rad, header.tilt_rad);
+        let (width_px, height_px) = self.depth.size_px();
         let disparity_header = DisparityHeader {
             stamp_ns: header.stamp_ns,
             sequence: header.sequence,
             pan_rad: header.pan_rad,
             tilt_rad: header.tilt_rad,
-            width_px: self.disparity.width as u32,
-            height_px: self.disparity.height as u32,
+            width_px: width_px as u32,
+            height_px: height_px as u32,
         };
-        out.publish(Message::Disparity(&disparity_header, &self.pixels))?;
+        // Disparity and labels are merged straight into the message's memory.
+        let (disparity, flags) = (&self.depth.disparity().data, &self.labels.flags);
+        out.publish_disparity_with(&disparity_header, &|i| DisparityPixel {
+            disparity_q4: disparity.get(i).copied().unwrap_or(DisparityPixel::INVALID),
+            labels: flags.get(i).copied().unwrap_or(0),
+            reserved: 0,
+        })?;
         self.summary.disparity_published += 1;
 
-        self.pending_capture_ns = Some(header.stamp_ns);
-        let state_known = self.states.iter().any(|(s, _)| *s == header.stamp_ns);
+        let state_known = self.states.exact(header.stamp_ns).is_some();
         let state_passed = self.latest.is_some_and(|l| l.stamp_ns > header.stamp_ns);
         if !self.options.odometry_follows_filter || state_known || state_passed {
-            self.run_pending_odometry(out)?;
+            let Some(prior) = self.odometry_prior(header.stamp_ns) else { return Ok(()) };
+            let disparity = self.options.sgm_depth_for_vo.then(|| self.depth.disparity());
+            let pair = if rectified_here { StereoView::of(&self.frame) } else { received };
+            let result = self.odometry.process_view(pair, disparity, prior.as_ref());
+            return self.publish_odometry(header.stamp_ns, result, prior.is_some(), out);
         }
+        // The odometry waits for the capture's filter state; the message's memory does not.
+        if !rectified_here {
+            self.frame.resize(header.width_px, header.height_px);
+            self.frame.left.copy_from_slice(left);
+            self.frame.right.copy_from_slice(right);
+            self.summary.pairs_held += 1;
+        }
+        self.frame.stamp_ns = header.stamp_ns;
+        self.frame.sequence = header.sequence;
+        self.frame.pan_rad = header.pan_rad;
+        self.frame.tilt_rad = header.tilt_rad;
+        self.pending_capture_ns = Some(header.stamp_ns);
         Ok(())
     }
 
-    /// SGM on the rectified pair, depth, labels, and the disparity message's pixels. `false` on
-    /// a geometry the matcher is not set up for.
-    fn match_and_classify(&mut self) -> bool {
-        let frame = &self.frame;
-        if frame.left.len() != self.sgm_left.pixels.len() || frame.right.len() != self.sgm_right.pixels.len() {
-            return false;
-        }
-        self.sgm_left.pixels.copy_from_slice(&frame.left);
-        self.sgm_right.pixels.copy_from_slice(&frame.right);
-        if self.matcher.compute_into(&self.sgm_left, &self.sgm_right, &mut self.disparity).is_err() {
-            return false;
-        }
-        if let Some(filter) = &mut self.speckle {
-            filter.apply(&mut self.disparity);
-        }
-        self.depth.fill_from_disparity(&self.disparity, &self.geometry);
+    /// Obstacle labels on the pipeline's depth.
+    fn classify(&mut self, pan_rad: f64, tilt_rad: f64) {
         // Without an IMU the filter's frame is not levelled: no attitude to classify against.
         let levelled = self.options.odometry_follows_filter;
+        let (depth, geometry) = (self.depth.depth(), self.depth.geometry());
         match self.latest.filter(|l| l.running && levelled) {
             Some(latest) => {
-                let t_local_cam = latest.t_local_body * self.calibration.t_body_left(frame.pan_rad, frame.tilt_rad);
-                self.classifier.classify(&self.depth, &self.geometry, &t_local_cam, &mut self.labels);
+                let t_local_cam = latest.t_local_body * self.calibration.t_body_left(pan_rad, tilt_rad);
+                self.classifier.classify(depth, geometry, &t_local_cam, &mut self.labels);
             }
             None => {
                 self.summary.frames_without_attitude += 1;
-                self.labels.width = self.disparity.width;
-                self.labels.height = self.disparity.height;
+                self.labels.width = depth.width;
+                self.labels.height = depth.height;
                 self.labels.flags.clear();
-                self.labels.flags.resize(self.disparity.data.len(), 0);
+                self.labels.flags.resize(depth.width * depth.height, 0);
             }
         }
-        self.pixels.resize(self.disparity.data.len(), INVALID_PIXEL);
-        for ((pixel, &d), &flags) in self.pixels.iter_mut().zip(&self.disparity.data).zip(&self.labels.flags) {
-            *pixel = DisparityPixel { disparity_q4: d, labels: flags, reserved: 0 };
-        }
-        true
     }
 
     fn on_filter_state(&mut self, state: &FilterStateMsg, out: &mut dyn Outbox) -> Result<(), NodeError> {
@@ -354,7 +354,7 @@ impl VisionNode {
         let running = state.status == FilterStateMsg::RUNNING;
         self.latest = Some(LatestState { stamp_ns: state.stamp_ns, t_local_body, running });
         if running {
-            push_bounded(&mut self.states, STATES_KEPT, (state.stamp_ns, self.t_first_local * t_local_body));
+            self.states.insert(chained(state.stamp_ns, self.t_first_local * t_local_body));
         }
         if self.pending_capture_ns.is_some_and(|capture| state.stamp_ns >= capture) {
             self.run_pending_odometry(out)?;
@@ -388,43 +388,57 @@ impl VisionNode {
         self.capture_poses.clear();
     }
 
+    /// The odometry of the pair held in `frame`, if one waits.
     fn run_pending_odometry(&mut self, out: &mut dyn Outbox) -> Result<(), NodeError> {
         let Some(capture_ns) = self.pending_capture_ns.take() else {
             return Ok(());
         };
-        let t_first_body = if self.options.odometry_follows_filter {
-            self.states.iter().rev().find(|(s, _)| *s == capture_ns).map(|(_, pose)| *pose)
-        } else {
-            None
-        };
+        let Some(prior) = self.odometry_prior(capture_ns) else { return Ok(()) };
+        let disparity = self.options.sgm_depth_for_vo.then(|| self.depth.disparity());
+        let result = self.odometry.process_view(StereoView::of(&self.frame), disparity, prior.as_ref());
+        self.publish_odometry(capture_ns, result, prior.is_some(), out)
+    }
+
+    /// The prior of the capture at `capture_ns` (the filter's keyframe→capture motion, `None`
+    /// without one); the outer `None` when the odometry must not run yet (the filter has not
+    /// started).
+    fn odometry_prior(&mut self, capture_ns: u64) -> Option<Option<Isometry3<f64>>> {
+        let t_first_body =
+            if self.options.odometry_follows_filter { self.states.exact(capture_ns).map(|s| s.pose) } else { None };
         if t_first_body.is_none() && self.options.odometry_follows_filter {
             if !self.latest.is_some_and(|l| l.running) {
                 self.summary.frames_before_init += 1;
-                return Ok(());
+                return None;
             }
             self.summary.prior_state_missing += 1;
         }
         let mut prior = None;
         if let Some(t_first_body) = t_first_body {
-            push_bounded(&mut self.capture_poses, CAPTURE_POSES_KEPT, (capture_ns, t_first_body));
+            self.capture_poses.insert(chained(capture_ns, t_first_body));
             if self.options.vo_prior
                 && let Some(keyframe_ns) = self.keyframe_ns
             {
-                match self.capture_poses.iter().find(|(s, _)| *s == keyframe_ns) {
-                    Some((_, t_first_keyframe)) => prior = Some(t_first_keyframe.inverse() * t_first_body),
+                match self.capture_poses.exact(keyframe_ns) {
+                    Some(keyframe) => prior = Some(keyframe.pose.inverse() * t_first_body),
                     None => self.summary.prior_keyframe_missing += 1,
                 }
             }
         }
-        let disparity = self.options.sgm_depth_for_vo.then_some(&self.disparity);
-        let output = match self.odometry.process(&self.frame, disparity, prior.as_ref()) {
-            Ok(output) => output,
-            Err(_) => {
-                self.summary.errors += 1;
-                return Ok(());
-            }
+        Some(prior)
+    }
+
+    fn publish_odometry(
+        &mut self,
+        capture_ns: u64,
+        result: Result<VoOutput, VoError>,
+        prior_used: bool,
+        out: &mut dyn Outbox,
+    ) -> Result<(), NodeError> {
+        let Ok(output) = result else {
+            self.summary.errors += 1;
+            return Ok(());
         };
-        if prior.is_some() {
+        if prior_used {
             self.summary.priors_used += 1;
         }
         self.record_vo(capture_ns, &output);

@@ -126,15 +126,10 @@ impl NodeKind {
         }
     }
 
-    /// Topics the process publishes (the node's outputs plus its task telemetry).
-    pub fn publishes(self) -> &'static [Topic] {
-        match self {
-            NodeKind::Driver => &[Topic::Imu, Topic::WheelOdom, Topic::Stereo, Topic::TaskStats],
-            NodeKind::Vision => &[Topic::Disparity, Topic::VoDelta, Topic::Marker, Topic::TaskStats],
-            NodeKind::Filter => &[Topic::FilterState, Topic::FrameSwitch, Topic::TaskStats],
-            NodeKind::Mapper => &[Topic::FrameSwitchRequest, Topic::ToComms, Topic::TaskStats],
-            NodeKind::Comms => &[Topic::ToMapper, Topic::TaskStats],
-        }
+    /// Topics the process publishes (the node's outputs plus its task telemetry), from the
+    /// registry.
+    pub fn publishes(self) -> Vec<Topic> {
+        crate::topics::published_by(self)
     }
 
     /// The process's fixed-rate task. The driver runs at the IMU rate (it publishes every sample

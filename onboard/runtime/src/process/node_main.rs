@@ -125,6 +125,9 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
         driver.add(GROUND_LINK, Box::new(udp));
     }
     let mut comms_config = CommsConfig::new(RobotId(protocol_robot_id(config.robot.id) as u8), links);
+    comms_config.initial_mode = config.robot.mode.mode();
+    comms_config.cpu_cores = crate::task::usage::board_cores();
+    comms_config.board_memory_kib = crate::task::usage::board_memory_kib();
     // A new boot id per start: peers reset their channels to a restarted process.
     comms_config.boot_id = (monotonic_ns() / 1_000) as u32 ^ std::process::id();
     if let Some(key) = &link.ground_key_file {
@@ -199,7 +202,7 @@ pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvide
     let geometry =
         ImageGeometry { width_px: setup.calibration.left.width_px, height_px: setup.calibration.left.height_px };
     let bus = Bus::open(config.robot.bus_id(), kind.name(), geometry)?;
-    let mut outbox = bus.outbox(kind.publishes())?;
+    let mut outbox = bus.outbox(&kind.publishes())?;
     let mut inbox = bus.inbox(hosted.node().subscriptions())?;
     let ready = dir.join(READY_DIR);
     std::fs::create_dir_all(&ready).map_err(io_error(&ready))?;
@@ -237,7 +240,13 @@ pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvide
             hosted.release(sensor_ns(release.start_ns), &mut inbox, &mut outbox)
         })?;
         // Telemetry is best effort: a full buffer never stops the task.
-        if outbox.publish(Message::TaskStats(&task.stats())).is_err() {
+        let mut stats = task.stats();
+        if let Some(peak) = inbox.take_queue_peak() {
+            stats.queue_topic = u32::from(peak.topic.code());
+            stats.queue_depth_max = peak.depth;
+            stats.queue_capacity = peak.capacity;
+        }
+        if outbox.publish(Message::TaskStats(&stats)).is_err() {
             stats_failed += 1;
         }
         if end == RunEnd::Stopped {

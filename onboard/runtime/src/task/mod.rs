@@ -25,7 +25,7 @@
 mod clock;
 mod histogram;
 pub mod rt;
-mod usage;
+pub mod usage;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -282,6 +282,10 @@ impl<C: Clock> FixedRateTask<C> {
             process_rss_bytes: usage.rss_bytes,
             process: self.process as u32,
             task: self.task_index,
+            queue_topic: 0,
+            queue_depth_max: 0,
+            queue_capacity: 0,
+            reserved: 0,
         }
     }
 }

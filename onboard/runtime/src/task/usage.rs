@@ -34,6 +34,24 @@ impl ProcessUsage {
     }
 }
 
+/// The board's memory (`MemTotal` of `/proc/meminfo`), KiB; `None` where it cannot be read.
+pub fn board_memory_kib() -> Option<u64> {
+    parse_meminfo_total_kib(&std::fs::read_to_string("/proc/meminfo").ok()?)
+}
+
+/// The `MemTotal:  1234 kB` line of `/proc/meminfo`, KiB.
+pub fn parse_meminfo_total_kib(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find_map(|l| l.strip_prefix("MemTotal:"))?;
+    let mut fields = line.split_whitespace();
+    let value: u64 = fields.next()?.parse().ok()?;
+    (fields.next()? == "kB").then_some(value)
+}
+
+/// The cores this process may run on (at least one).
+pub fn board_cores() -> u16 {
+    std::thread::available_parallelism().map_or(1, |n| u16::try_from(n.get()).unwrap_or(u16::MAX))
+}
+
 /// The `VmRSS:  1234 kB` line of `/proc/<pid>/status`, in bytes. `None` if absent or malformed.
 pub fn parse_status_rss_bytes(status: &str) -> Option<u64> {
     let line = status.lines().find_map(|l| l.strip_prefix("VmRSS:"))?;

@@ -101,6 +101,7 @@ struct ProcessCpu {
 #[derive(Debug)]
 pub(super) struct GroundFeed {
     cpu_cores: u16,
+    board_memory_kib: Option<u64>,
     filter: Option<FilterStateMsg>,
     imu_lost_reported: u64,
     tasks: BTreeMap<(u32, u32), TaskStatsMsg>,
@@ -108,9 +109,10 @@ pub(super) struct GroundFeed {
 }
 
 impl GroundFeed {
-    pub fn new(cpu_cores: u16) -> Self {
+    pub fn new(cpu_cores: u16, board_memory_kib: Option<u64>) -> Self {
         GroundFeed {
             cpu_cores: cpu_cores.max(1),
+            board_memory_kib,
             filter: None,
             imu_lost_reported: 0,
             tasks: BTreeMap::new(),
@@ -173,7 +175,10 @@ impl GroundFeed {
             status,
             position_std_m: position_var.max(0.0).sqrt() as f32,
             yaw_std_rad: c[35].max(0.0).sqrt() as f32,
-            vo_age_ms: u32::MAX,
+            vo_age_ms: match state.last_vo_capture_ns {
+                FilterStateMsg::NEVER => u32::MAX,
+                capture_ns => saturate_u32(now_ns.saturating_sub(capture_ns) / 1_000_000),
+            },
         };
         (health, state.imu_lost)
     }
@@ -219,8 +224,7 @@ impl GroundFeed {
             resources: ResourceUsage {
                 cpu_permille: saturate_u16(permille_all_cores),
                 mem_used_kib: saturate_u32(rss_bytes / 1024),
-                // The board's total memory is not on the bus.
-                mem_total_kib: 0,
+                mem_total_kib: saturate_u32(self.board_memory_kib.unwrap_or(0)),
             },
             tasks: Default::default(),
             queues: Default::default(),
@@ -237,7 +241,9 @@ impl GroundFeed {
                 tx_packets: saturate_u32(traffic.packets),
             });
         }
-        for ((process, task), stats) in self.tasks.iter().take(MAX_TASKS) {
+        // Nodes without a fixed-rate task (the lockstep runner) report CPU and memory only.
+        let timed = self.tasks.iter().filter(|(_, s)| s.period_ns != TaskStatsMsg::NO_TASK);
+        for ((process, task), stats) in timed.take(MAX_TASKS) {
             let entry = TaskStats {
                 task: label(&format!("{}.{task}", process_name(*process))),
                 period_us: saturate_u32(stats.period_ns / 1000),
@@ -249,12 +255,28 @@ impl GroundFeed {
             // Cannot fail: at most MAX_TASKS are taken.
             let _ = telemetry.tasks.push(entry);
         }
-        let _ = telemetry.queues.push(QueueStats {
-            queue: label("imu"),
-            depth: 0,
-            capacity: 0,
-            dropped: saturate_u32(imu_lost),
-        });
+        // Each process's fullest receive queue since its last report; the filter's also counts
+        // the IMU samples that never arrived.
+        let filter_process = ProcessKind::Filter as u32;
+        for ((process, _), stats) in &self.tasks {
+            if stats.queue_topic == 0 || telemetry.queues.is_full() {
+                continue;
+            }
+            let _ = telemetry.queues.push(QueueStats {
+                queue: label(process_name(*process)),
+                depth: saturate_u16(u64::from(stats.queue_depth_max)),
+                capacity: saturate_u16(u64::from(stats.queue_capacity)),
+                dropped: if *process == filter_process { saturate_u32(imu_lost) } else { 0 },
+            });
+        }
+        if !telemetry.queues.iter().any(|q| q.queue.as_str() == "filter") {
+            let _ = telemetry.queues.push(QueueStats {
+                queue: label("filter"),
+                depth: 0,
+                capacity: 0,
+                dropped: saturate_u32(imu_lost),
+            });
+        }
         let seconds = (period_ns as f64 / 1e9).max(1e-3);
         for view in links.into_iter().take(MAX_LINKS) {
             let s = view.stats;

@@ -25,7 +25,6 @@ const VERSION: u16 = 1;
 /// make the covariance allocation huge).
 const MAX_CLONES: usize = 256;
 const CORE: usize = 15;
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Counters of [`super::FilterNodeSummary`] that continue across restarts, in file order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -168,7 +167,7 @@ pub fn encode(checkpoint: &FilterCheckpoint, out: &mut Vec<u8>) {
         // Not a filter's own snapshot; written so that the reader refuses it (non-finite).
         put_f64s(out, std::iter::repeat_n(f64::NAN, n * n));
     }
-    let crc = CRC.checksum(out);
+    let crc = protocol::crc::crc32(out);
     out.extend_from_slice(&crc.to_le_bytes());
 }
 
@@ -253,7 +252,7 @@ pub fn decode(bytes: &[u8]) -> Result<FilterCheckpoint, CheckpointError> {
     }
     let mut crc_bytes = [0u8; 4];
     crc_bytes.copy_from_slice(crc);
-    if CRC.checksum(body) != u32::from_le_bytes(crc_bytes) {
+    if protocol::crc::crc32(body) != u32::from_le_bytes(crc_bytes) {
         return Err(CheckpointError::Crc);
     }
     let run_id = r.u64()?;
@@ -423,7 +422,7 @@ mod tests {
             let _ = decode(&bytes);
             let mut framed = b"OBFC\x01\x00".to_vec();
             framed.extend_from_slice(&bytes);
-            let crc = CRC.checksum(&framed);
+            let crc = protocol::crc::crc32(&framed);
             framed.extend_from_slice(&crc.to_le_bytes());
             let _ = decode(&framed);
         }

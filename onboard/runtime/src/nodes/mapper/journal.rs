@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion};
 
-use super::crc::crc32;
+use protocol::crc::crc32;
 
 /// Largest record accepted (protocol packets are ~1.1 kB; anything larger is corruption).
 const MAX_RECORD_BYTES: usize = 1 << 16;
