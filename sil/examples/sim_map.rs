@@ -14,8 +14,6 @@ use std::sync::Arc;
 
 use eval::map::{HeightGrid, TrueObstacle};
 use filter::FrameSwitch;
-use fpga_model::fast::Matcher;
-use fpga_model::{DisparityImage, GrayImage};
 use mapper::global::{Composition, GlobalMap, GlobalMapConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
 use mapper::slam::{FramePose, PoseBuffer, SameStamp};
@@ -178,11 +176,8 @@ fn main() -> Result<(), BoxError> {
     let (w, h) = (calibration.left.width_px as usize, calibration.left.height_px as usize);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     // The vision node's depth: SGM with its uniqueness margin, then the speckle filter.
-    let mut matcher = Matcher::new(vision::depth_sgm_config(), w, h, threads)?;
-    let mut speckle = vision::SpeckleFilter::for_image(w, h);
-    let mut left = GrayImage { width: w, height: h, pixels: vec![0; w * h] };
-    let mut right = GrayImage { width: w, height: h, pixels: vec![0; w * h] };
-    let mut disparity = DisparityImage { width: w, height: h, data: vec![0; w * h] };
+    let depth_options = vision::DepthOptions { threads, ..vision::DepthOptions::default() };
+    let mut depth = vision::DepthPipeline::new(&calibration, depth_options)?;
     let mut classifier = ObstacleClassifier::new(ObstacleConfig::default())?;
     let mut labels = PixelLabels::default();
     let (mut truth, mut filtered, mut raw) = (Track::new(geometry), Track::new(geometry), Track::new(geometry));
@@ -224,10 +219,7 @@ fn main() -> Result<(), BoxError> {
             let t_world_cam = world.t_world_cam(0, stamp_ns).ok_or("no camera pose")?;
             let started = std::time::Instant::now();
             let (frame_left, frame_right) = bytes.split_at(w * h);
-            left.pixels.copy_from_slice(frame_left);
-            right.pixels.copy_from_slice(frame_right);
-            matcher.compute_into(&left, &right, &mut disparity)?;
-            speckle.apply(&mut disparity);
+            depth.compute(frame_left, frame_right)?;
             let mut p = pool.pop().unwrap_or_else(|| Pending {
                 stamp_ns: 0,
                 depth: DepthImage::new(w, h),
@@ -235,7 +227,7 @@ fn main() -> Result<(), BoxError> {
                 t_world_body_true: Isometry3::identity(),
                 t_world_cam_true: Isometry3::identity(),
             });
-            p.depth.fill_from_disparity(&disparity, &geometry);
+            p.depth.depth_m.copy_from_slice(&depth.depth().depth_m);
             sgm_s += started.elapsed().as_secs_f64();
             p.grey.copy_from_slice(frame_left);
             p.stamp_ns = stamp_ns;

@@ -3,7 +3,7 @@
 //! obstacle classifier's 2.5D consistency test, 7 m submaps from the `Submapper`, composition
 //! by `GlobalMap`, scored against the true heightfield within 5 m of the path and away from
 //! rocks. The filter-pose variant needs the VIO pipeline:
-//! `cargo run --release -p onboard --example sim_map`.
+//! `cargo run --release -p sil --example sim_map`.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::Arc;

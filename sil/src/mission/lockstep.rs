@@ -67,6 +67,11 @@ pub fn robot_stack(
 ) -> Result<MissionRobot, MissionError> {
     let node_error = |e| MissionError::Node(self_robot(robot), e);
     let config = robot_config(options, world, robot)?;
+    // The configuration the robot runs with, as the process runner would hand it to `sil run`.
+    let robot_dir = out.join(format!("robot{robot}"));
+    std::fs::create_dir_all(&robot_dir).map_err(|e| MissionError::Io { path: robot_dir.clone(), source: e })?;
+    let toml_path = robot_dir.join("rover.toml");
+    std::fs::write(&toml_path, config.to_toml_string()).map_err(|e| MissionError::Io { path: toml_path, source: e })?;
     let setup = sensor_setup(&config).map_err(|e| MissionError::Setup(format!("robot {robot}: {e}")))?;
     let source = SimSensorSource::new(Arc::clone(world), robot)
         .map_err(|e| MissionError::World(format!("robot {robot} sensors: {e}")))?;

@@ -17,7 +17,7 @@
 //! them rather than write a report that claims them.
 //!
 //! # Fault injection
-//! [`MissionOptions::faults`] (`onboard mission --kill 1:mapper@22`): at that sensor time the
+//! [`MissionOptions::faults`] (`sil mission --kill 1:mapper@22`): at that sensor time the
 //! mission sends SIGKILL to the process, whose pid it reads from the supervisor's
 //! `robotN/pids/<process>` (checked to be a child of that supervisor). Each kill is recorded in
 //! `faults.json` in the output folder, with the robot's finished submaps on disk at that moment

@@ -1,5 +1,7 @@
-//! The local reference filter as a bus node: [`crate::vio::VioPipeline`]'s filter logic, fed by
-//! messages instead of one in-process event stream.
+//! The local reference filter as a bus node: the error-state filter (`filter::Filter`) fed by the
+//! driver's IMU and wheel odometry, vision's odometry results and the mapper's switch requests.
+//! Without an IMU (a dataset that has none) the node publishes the odometry's own chain instead
+//! ([`odometry_chain`]).
 //!
 //! - **IMU**: averaged over the at-rest initialization window, then propagation, the VO results
 //!   that are due (capture + [`FilterNodeOptions::latency_ns`]), a ZUPT at 10 Hz while standing;

@@ -1,5 +1,5 @@
 //! The vision process as a bus node: rectification, SGM, obstacle labels and keyframe stereo
-//! odometry on each stereo pair (the vision half of [`crate::vio::VioPipeline`]).
+//! odometry on each stereo pair.
 //!
 //! On a pair: rectify when the calibration is raw; SGM disparity and depth always
 //! ([`vision::DepthPipeline`]: the fast matcher with [`vision::depth_sgm_config`], then the speckle
@@ -160,7 +160,7 @@ fn failed(reason: String) -> NodeError {
 /// The transform of a received pose, validated as [`Pose::to_isometry`] does, but keeping the
 /// sender's quaternion bits when its norm is 1 to rounding: renormalizing it anyway changes the
 /// last bits, and the odometry's discrete decisions (keyframes, inlier sets) can flip on such a
-/// difference, so the nodes would not reproduce [`crate::vio::VioPipeline`] exactly.
+/// difference, so the two runners would not give the same numbers.
 pub(crate) fn exact_isometry(pose: &Pose) -> Option<Isometry3<f64>> {
     let normalized = pose.to_isometry()?;
     let [w, x, y, z] = pose.rotation_wxyz;
