@@ -19,8 +19,8 @@ use std::sync::Arc;
 
 use eval::metrics::Stats;
 use mapper::slam::{
-    self, AttemptOutcome, FilterPose, GraphSize, MatchAttempt, Measurement, RobotDetection, RobotId, SubmapId,
-    SubmapMatch, SubmapSwitch, TeamGraph, TeamGraphConfig, Topology,
+    self, AttemptOutcome, FilterPose, GraphSize, MatchAttempt, Measurement, RobotId, SubmapId, SubmapMatch,
+    SubmapSwitch, TeamGraph, TeamGraphConfig, Topology,
 };
 use nalgebra::Isometry3;
 use sim::truth_constraints::{SubmapSpan, TruthConstraintConfig, TruthConstraints};
@@ -179,14 +179,7 @@ pub fn exchange(
         for p in &poses[r] {
             for d in truth.detections_at(r, p.stamp_ns) {
                 log.detections += 1;
-                let detection = RobotDetection {
-                    observer: robot_id(d.observer),
-                    observed: robot_id(d.observed),
-                    tag_id: d.tag_id,
-                    stamp_ns: d.stamp_ns,
-                    t_observer_observed: d.t_observer_observed,
-                    covariance: d.covariance,
-                };
+                let detection = crate::truth_closures::detection_measurement(&d, robot_id);
                 for to in 0..n {
                     let arrival = d.stamp_ns + delay + if to == r { 0 } else { latency };
                     outbox.send(to, arrival, Measurement::Detection(detection));

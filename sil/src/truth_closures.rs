@@ -11,7 +11,7 @@
 use std::sync::Arc;
 
 use mapper::slam::{AttemptOutcome, MatchAttempt, Measurement, RobotDetection, SubmapId, SubmapMatch};
-use sim::truth_constraints::{SubmapSpan, TruthConstraintConfig, TruthConstraints};
+use sim::truth_constraints::{SubmapSpan, TruthConstraintConfig, TruthConstraints, TruthDetection};
 use sim::world::World;
 
 use onboard::nodes::Outbox;
@@ -81,14 +81,7 @@ impl TruthLoopClosures {
         }
         for d in self.truth.detections_at(robot, stamp_ns) {
             self.detections += 1;
-            let detection = RobotDetection {
-                observer: robot_id(d.observer),
-                observed: robot_id(d.observed),
-                tag_id: d.tag_id,
-                stamp_ns: d.stamp_ns,
-                t_observer_observed: d.t_observer_observed,
-                covariance: d.covariance,
-            };
+            let detection = detection_measurement(&d, robot_id);
             mapper
                 .insert_measurement(&Measurement::Detection(detection), out)
                 .map_err(|e| MissionError::Node(format!("robot {robot}"), e))?;
@@ -144,5 +137,18 @@ impl TruthLoopClosures {
             }
         }
         Ok(())
+    }
+}
+
+/// A truth detection as the team graph's measurement; `robot_id` maps the simulator's robot
+/// index to the graph's id (the mission's protocol ids, the evaluation's plain indices).
+pub fn detection_measurement(d: &TruthDetection, robot_id: fn(usize) -> u16) -> RobotDetection {
+    RobotDetection {
+        observer: robot_id(d.observer),
+        observed: robot_id(d.observed),
+        tag_id: d.tag_id,
+        stamp_ns: d.stamp_ns,
+        t_observer_observed: d.t_observer_observed,
+        covariance: d.covariance,
     }
 }

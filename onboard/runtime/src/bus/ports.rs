@@ -239,6 +239,24 @@ struct OutPort {
     counters: PublishCounters,
 }
 
+impl OutPort {
+    /// Counts a send's outcome (subscribers reached, or the failure) and turns it into the
+    /// node's result.
+    fn record(&mut self, topic: Topic, sent: Result<usize, String>) -> Result<(), NodeError> {
+        match sent {
+            Ok(reached) => {
+                self.counters.sent += 1;
+                self.counters.deliveries += reached as u64;
+                Ok(())
+            }
+            Err(reason) => {
+                self.counters.failed += 1;
+                Err(NodeError::Publish { topic, reason })
+            }
+        }
+    }
+}
+
 /// A process's publishers: implements [`Outbox`] for its node.
 pub struct BusOutbox {
     ports: [Option<OutPort>; TOPICS],
@@ -273,6 +291,17 @@ impl BusOutbox {
             .map(|p| PublishCounters { discarded: p.discarded.load(Ordering::Relaxed), ..p.counters })
             .unwrap_or_default()
     }
+
+    fn out_port(&mut self, topic: Topic) -> Result<&mut OutPort, NodeError> {
+        self.ports[topic_index(topic)].as_mut().ok_or_else(|| NodeError::Publish {
+            topic,
+            reason: "this outbox has no publisher for the topic".to_owned(),
+        })
+    }
+}
+
+fn wrong_port(topic: Topic) -> NodeError {
+    NodeError::Publish { topic, reason: "publisher and message types differ".to_owned() }
 }
 
 impl Outbox for BusOutbox {
@@ -285,33 +314,17 @@ impl Outbox for BusOutbox {
     ) -> Result<(), NodeError> {
         let topic = Topic::Stereo;
         let len = crate::nodes::stereo_len(header)?;
-        let Some(out) = self.ports[topic_index(topic)].as_mut() else {
-            return Err(NodeError::Publish { topic, reason: "this outbox has no publisher for the topic".to_owned() });
-        };
-        let Pub::Stereo(port) = &out.port else {
-            return Err(NodeError::Publish { topic, reason: "publisher and message types differ".to_owned() });
-        };
+        let out = self.out_port(topic)?;
+        let Pub::Stereo(port) = &out.port else { return Err(wrong_port(topic)) };
         let mut sample = match port.loan_slice(len) {
             Ok(sample) => sample,
-            Err(e) => {
-                out.counters.failed += 1;
-                return Err(NodeError::Publish { topic, reason: format!("loan of {len} bytes: {e:?}") });
-            }
+            Err(e) => return out.record(topic, Err(format!("loan of {len} bytes: {e:?}"))),
         };
         *sample.user_header_mut() = *header;
         // An error here drops the sample unsent: the loan goes back to the publisher.
         fill(sample.payload_mut())?;
-        match sample.send() {
-            Ok(reached) => {
-                out.counters.sent += 1;
-                out.counters.deliveries += reached as u64;
-                Ok(())
-            }
-            Err(e) => {
-                out.counters.failed += 1;
-                Err(NodeError::Publish { topic, reason: format!("send: {e:?}") })
-            }
-        }
+        let sent = sample.send().map_err(|e| format!("send: {e:?}"));
+        out.record(topic, sent)
     }
 
     /// Each pixel is written once, straight into a loaned shared-memory sample.
@@ -322,49 +335,22 @@ impl Outbox for BusOutbox {
     ) -> Result<(), NodeError> {
         let topic = Topic::Disparity;
         let len = crate::nodes::disparity_len(header)?;
-        let Some(out) = self.ports[topic_index(topic)].as_mut() else {
-            return Err(NodeError::Publish { topic, reason: "this outbox has no publisher for the topic".to_owned() });
-        };
-        let Pub::Disparity(port) = &out.port else {
-            return Err(NodeError::Publish { topic, reason: "publisher and message types differ".to_owned() });
-        };
+        let out = self.out_port(topic)?;
+        let Pub::Disparity(port) = &out.port else { return Err(wrong_port(topic)) };
         let mut sample = match port.loan_slice_uninit(len) {
             Ok(sample) => sample,
-            Err(e) => {
-                out.counters.failed += 1;
-                return Err(NodeError::Publish { topic, reason: format!("loan of {len} pixels: {e:?}") });
-            }
+            Err(e) => return out.record(topic, Err(format!("loan of {len} pixels: {e:?}"))),
         };
         *sample.user_header_mut() = *header;
-        match sample.write_from_fn(pixel).send() {
-            Ok(reached) => {
-                out.counters.sent += 1;
-                out.counters.deliveries += reached as u64;
-                Ok(())
-            }
-            Err(e) => {
-                out.counters.failed += 1;
-                Err(NodeError::Publish { topic, reason: format!("send: {e:?}") })
-            }
-        }
+        let sent = sample.write_from_fn(pixel).send().map_err(|e| format!("send: {e:?}"));
+        out.record(topic, sent)
     }
 
     fn publish(&mut self, message: Message<'_>) -> Result<(), NodeError> {
         let topic = message.topic();
-        let Some(out) = self.ports[topic_index(topic)].as_mut() else {
-            return Err(NodeError::Publish { topic, reason: "this outbox has no publisher for the topic".to_owned() });
-        };
-        match out.port.send(message) {
-            Ok(reached) => {
-                out.counters.sent += 1;
-                out.counters.deliveries += reached as u64;
-                Ok(())
-            }
-            Err(reason) => {
-                out.counters.failed += 1;
-                Err(NodeError::Publish { topic, reason })
-            }
-        }
+        let out = self.out_port(topic)?;
+        let sent = out.port.send(message);
+        out.record(topic, sent)
     }
 }
 

@@ -37,7 +37,8 @@ use std::collections::VecDeque;
 use std::path::PathBuf;
 
 use filter::{
-    Filter, FilterConfig, FilterHealth, RelativePoseMeasurement, StandstillConfig, StandstillDetector, UpdateOutcome,
+    Filter, FilterConfig, FilterHealth, FrameSwitch, RelativePoseMeasurement, StandstillConfig, StandstillDetector,
+    UpdateOutcome,
 };
 use hal::sensor::{ImuSample, WheelOdomSample};
 use msgs::{FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, Pose, VoDeltaMsg, WheelOdomMsg};
@@ -656,14 +657,18 @@ impl FilterNode {
         };
         self.summary.frame_switches += 1;
         self.write_checkpoint();
-        let message = FrameSwitchMsg {
-            stamp_ns: switch.stamp_ns,
-            t_old_new: Pose::from_isometry(&switch.t_old_new),
-            covariance: msgs::covariance_to_array(&switch.covariance),
-            old_frame_id: switch.old_frame_id,
-            new_frame_id: switch.new_frame_id,
-        };
-        out.publish(Message::FrameSwitch(&message))
+        out.publish(Message::FrameSwitch(&frame_switch_message(&switch)))
+    }
+}
+
+/// The bus form of a frame switch, from the filter or the odometry chain.
+fn frame_switch_message(switch: &FrameSwitch) -> FrameSwitchMsg {
+    FrameSwitchMsg {
+        stamp_ns: switch.stamp_ns,
+        t_old_new: Pose::from_isometry(&switch.t_old_new),
+        covariance: msgs::covariance_to_array(&switch.covariance),
+        old_frame_id: switch.old_frame_id,
+        new_frame_id: switch.new_frame_id,
     }
 }
 
@@ -695,14 +700,7 @@ impl FilterNode {
                     return Ok(());
                 };
                 self.summary.frame_switches += 1;
-                let message = FrameSwitchMsg {
-                    stamp_ns: switch.stamp_ns,
-                    t_old_new: Pose::from_isometry(&switch.t_old_new),
-                    covariance: msgs::covariance_to_array(&switch.covariance),
-                    old_frame_id: switch.old_frame_id,
-                    new_frame_id: switch.new_frame_id,
-                };
-                out.publish(Message::FrameSwitch(&message))
+                out.publish(Message::FrameSwitch(&frame_switch_message(&switch)))
             }
             Message::Imu(_) => {
                 self.summary.imu_received += 1;

@@ -14,6 +14,7 @@
 
 use std::collections::VecDeque;
 
+use filter::FrameSwitch;
 use nalgebra::{Isometry3, Matrix3, Matrix6};
 
 /// Keyframes kept for compounding (the odometry keeps five; a few more cover re-acquisition).
@@ -38,16 +39,6 @@ pub struct ChainState {
     pub stamp_ns: u64,
     pub frame_id: u32,
     pub t_local_body: Isometry3<f64>,
-    pub covariance: Matrix6<f64>,
-}
-
-/// A frame switch of the chain.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ChainSwitch {
-    pub stamp_ns: u64,
-    pub old_frame_id: u32,
-    pub new_frame_id: u32,
-    pub t_old_new: Isometry3<f64>,
     pub covariance: Matrix6<f64>,
 }
 
@@ -115,10 +106,10 @@ impl OdometryChain {
     }
 
     /// Starts a new local frame at the latest pose; `None` before the first input.
-    pub fn switch_frame(&mut self) -> Option<ChainSwitch> {
+    pub fn switch_frame(&mut self) -> Option<FrameSwitch> {
         let latest = self.latest?;
         let t_old_new = latest.t_local_body;
-        let switch = ChainSwitch {
+        let switch = FrameSwitch {
             stamp_ns: latest.stamp_ns,
             old_frame_id: self.frame_id,
             new_frame_id: self.frame_id + 1,
