@@ -46,6 +46,22 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             run.filter_s * 1e3 / world.duration_s,
             start.elapsed().as_secs_f64()
         );
+        let v = &run.vision;
+        println!(
+            "{:<18} frame switches {} (requests ignored {}), VO late {} / missing clone {} / skipped {}; \
+             vision priors {} used, {} without the capture's state, {} without the keyframe's pose, \
+             switches missed {}",
+            "",
+            s.frame_switches,
+            s.switch_requests_ignored,
+            s.vo_late,
+            s.vo_updates_missing_clone,
+            s.vo_updates_skipped,
+            v.priors_used,
+            v.prior_state_missing,
+            v.prior_keyframe_missing,
+            v.frame_switches_missed
+        );
     }
     Ok(())
 }
