@@ -116,17 +116,43 @@ impl VoDeltaMsg {
     pub const RESET: u32 = 4;
 }
 
-/// `vision/markers`: one detected robot marker.
+/// `vision/markers`: one detected AprilTag (thesis §6.2), with the pose of the better PnP solution
+/// and the uncertainty model's covariance.
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
 #[repr(C)]
-#[type_name("rover.Marker.v1")]
+#[type_name("rover.Marker.v2")]
 pub struct MarkerMsg {
     pub capture_stamp_ns: u64,
-    /// Marker pose in the left camera frame.
+    /// The left camera in the body frame at the capture (the pan-tilt head's angles applied).
+    pub t_body_cam: Pose,
+    /// Marker pose in the left rectified camera frame (x right, y down, z forward; marker frame x
+    /// to the tag's right, y to its top, z out of its face).
     pub t_cam_marker: Pose,
-    pub covariance: Covariance6,
+    /// Covariance of `t_cam_marker`, ordered `[δt; δθ]` in the camera's axes:
+    /// `t_true = t̂ + δt`, `R_true = Exp(δθ) · R̂` (`vision::marker_pose`'s error convention).
+    pub covariance_cam: Covariance6,
+    /// The tag's corners in the image it was detected in (pixel centres at integers; the
+    /// upstream AprilTag corner order).
+    pub corners_px: [[f32; 2]; 4],
     pub tag_id: u32,
-    pub reserved: u32,
+    /// Bits corrected by the decoder.
+    pub hamming: u32,
+    pub decision_margin: f32,
+    /// Reprojection error of the worse PnP solution over the better one's (≥ 1; near 1 the
+    /// planar pose is ambiguous).
+    pub ambiguity_ratio: f32,
+    /// Distance and signed tilt the uncertainty table was read at.
+    pub distance_m: f32,
+    pub tilt_rad: f32,
+    /// [`MarkerMsg::LEFT`] or [`MarkerMsg::RIGHT`]: the image of the detection.
+    pub camera: u32,
+    /// The uncertainty model that gave `covariance_cam` (`vision::marker_pose` model code).
+    pub model: u32,
+}
+
+impl MarkerMsg {
+    pub const LEFT: u32 = 0;
+    pub const RIGHT: u32 = 1;
 }
 
 /// `filter/state`: the local reference filter's estimate after one IMU sample.

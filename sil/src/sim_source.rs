@@ -20,6 +20,7 @@
 use std::sync::Arc;
 
 use hal::sensor::{SensorSource, StereoCalibration};
+use onboard::config::calibration::PoseConfig;
 use onboard::config::{CalibrationConfig, DriverKind, ImuNoiseConfig, ModeConfig, RoverConfig};
 use onboard::sensors::{FirmwareSources, SensorSetupError, SourceProvider};
 use serde::{Deserialize, Serialize};
@@ -154,7 +155,23 @@ pub fn configure_sim_robot(
     // mapped range the same (about 4.5 m on the LRU head).
     let default_limit = mapper::integrate::IntegratorConfig::default().max_depth_error_m;
     config.mapper.max_depth_error_m = Some(default_limit * f64::from(sim.downscale.max(1)));
+    configure_sim_markers(config, scenario);
     validate_sim_rates(config)
+}
+
+/// The team's tag mountings as the rover design states them (the simulator's rovers are all
+/// alike: tag `3j + k` of robot `j` at the same place for every `j`), and the tag size.
+pub fn configure_sim_markers(config: &mut RoverConfig, scenario: &Scenario) {
+    let Some(rover) = scenario.robots.iter().find(|r| r.model.markers.len() == 3) else {
+        config.markers.mounting.clear();
+        config.markers.detect = false;
+        return;
+    };
+    let mut markers = rover.model.markers.clone();
+    markers.sort_by_key(|m| m.tag_id % 3);
+    config.markers.tags_per_robot = 3;
+    config.markers.size_m = markers[0].size_m;
+    config.markers.mounting = markers.iter().map(|m| PoseConfig::from_isometry(&m.t_body_marker)).collect();
 }
 
 /// The simulator fires every sensor on the IMU's sample grid.

@@ -11,9 +11,11 @@ use std::sync::Arc;
 use fpga_model::fast::Matcher;
 use fpga_model::{DisparityImage, GrayImage, SgmConfig};
 use hal::sensor::{SensorEvent, SensorSource, StereoCalibration, StereoFrame};
-use mapper::slam::{Measurement, RobotDetection};
+use mapper::slam::{Measurement, RobotDetection, TeamMarkers};
 use mapper::submap::SubmapPolicy;
-use msgs::{DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, Pose, TeamHeader};
+use msgs::{
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, MarkerMsg, Pose, TeamHeader,
+};
 use nalgebra::{Isometry3, Matrix6, Vector3};
 use onboard::nodes::mapper::{MapperConfig, MapperNode, journal};
 use onboard::nodes::{Message, Node, NodeError, Outbox};
@@ -349,13 +351,91 @@ fn a_killed_mapper_restarts_with_every_finished_submap_and_the_graph() {
     assert_eq!(std::fs::metadata(&journal_path).unwrap().len() as usize, full);
 }
 
+/// How the first robot learns that it sees the second at capture `stamp_ns`.
+type Inject = fn(&mut MapperNode, &mut Captured, &[u16; 2], u64, &Isometry3<f64>, &Isometry3<f64>);
+
+fn detection_into_graph(
+    node: &mut MapperNode,
+    out: &mut Captured,
+    ids: &[u16; 2],
+    stamp_ns: u64,
+    t_world_a: &Isometry3<f64>,
+    t_world_b: &Isometry3<f64>,
+) {
+    let detection = RobotDetection {
+        observer: ids[0],
+        observed: ids[1],
+        tag_id: 0,
+        stamp_ns,
+        t_observer_observed: t_world_a.inverse() * t_world_b,
+        covariance: Matrix6::from_diagonal(&nalgebra::Vector6::new(1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5)),
+    };
+    node.insert_measurement(&Measurement::Detection(detection), out).unwrap();
+}
+
+/// The second robot's tag 1 (configuration id `ids[1] − 1`, so tag `3·(ids[1] − 1) + 1`) as the
+/// vision process reports it: the camera on the mast, the tag's true pose in it.
+fn tag_on_the_bus(
+    node: &mut MapperNode,
+    out: &mut Captured,
+    ids: &[u16; 2],
+    stamp_ns: u64,
+    t_world_a: &Isometry3<f64>,
+    t_world_b: &Isometry3<f64>,
+) {
+    let t_body_cam = Isometry3::new(Vector3::new(0.3, 0.05, 1.1), Vector3::new(-1.2, 0.0, -1.5));
+    let t_body_marker = mounting()[1];
+    let t_cam_marker = t_body_cam.inverse() * t_world_a.inverse() * t_world_b * t_body_marker;
+    let marker = MarkerMsg {
+        capture_stamp_ns: stamp_ns,
+        t_body_cam: pose_msg(&t_body_cam),
+        t_cam_marker: pose_msg(&t_cam_marker),
+        covariance_cam: diagonal([1e-4, 1e-4, 4e-4, 1e-4, 1e-4, 1e-5]),
+        corners_px: [[0.0; 2]; 4],
+        tag_id: 3 * u32::from(ids[1] - 1) + 1,
+        hamming: 0,
+        decision_margin: 80.0,
+        ambiguity_ratio: 5.0,
+        distance_m: t_cam_marker.translation.vector.norm() as f32,
+        tilt_rad: 0.3,
+        camera: MarkerMsg::LEFT,
+        model: 0,
+    };
+    node.on_message(Message::Marker(&marker), out).unwrap();
+    assert_eq!(node.counters().marker_detections, 1, "the tag became a detection");
+}
+
+/// The team's three tag mountings (any rigid poses do: the detection removes them again).
+fn mounting() -> [Isometry3<f64>; 3] {
+    [0.0, 2.1, 4.2].map(|yaw| {
+        Isometry3::new(Vector3::new(0.11 * f64::cos(yaw), 0.11 * f64::sin(yaw), 0.8), Vector3::new(1.0, 0.2, yaw))
+    })
+}
+
 #[test]
 fn two_mappers_exchanging_bytes_connect_on_a_detection_and_share_submaps() {
+    two_mappers_connect(detection_into_graph);
+}
+
+#[test]
+fn a_tag_from_the_vision_process_connects_two_mappers() {
+    two_mappers_connect(tag_on_the_bus);
+}
+
+fn two_mappers_connect(inject: Inject) {
     let world = world(2, 28.0, 7);
     let mut feeds = [Feed::new(&world, 0), Feed::new(&world, 1)];
     let ids = [11u16, 12u16];
-    let mut nodes: Vec<MapperNode> =
-        ids.iter().zip(&feeds).map(|(id, f)| MapperNode::new(config_with(f, *id, None, 1.5)).unwrap()).collect();
+    let team = TeamMarkers { tags_per_robot: 3, t_body_marker: mounting().to_vec() };
+    let mut nodes: Vec<MapperNode> = ids
+        .iter()
+        .zip(&feeds)
+        .map(|(id, f)| {
+            let mut config = config_with(f, *id, None, 1.5);
+            config.markers = Some(team.clone());
+            MapperNode::new(config).unwrap()
+        })
+        .collect();
     let mut outs = [Captured::default(), Captured::default()];
     let detection_at_ns = 12_000_000_000u64;
     let mut detected = false;
@@ -382,15 +462,7 @@ fn two_mappers_exchanging_bytes_connect_on_a_detection_and_share_submaps() {
             let t = *feeds[0].camera_stamps.iter().rev().find(|&&s| s <= detection_at_ns).unwrap();
             let t_world_a = world.robot_state(0, t).unwrap().t_world_body;
             let t_world_b = world.robot_state(1, t).unwrap().t_world_body;
-            let detection = RobotDetection {
-                observer: ids[0],
-                observed: ids[1],
-                tag_id: 0,
-                stamp_ns: t,
-                t_observer_observed: t_world_a.inverse() * t_world_b,
-                covariance: Matrix6::from_diagonal(&nalgebra::Vector6::new(1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5)),
-            };
-            nodes[0].insert_measurement(&Measurement::Detection(detection), &mut outs[0]).unwrap();
+            inject(&mut nodes[0], &mut outs[0], &ids, t, &t_world_a, &t_world_b);
         }
     }
     assert!(detected);

@@ -37,6 +37,7 @@ mod estimate;
 mod graph;
 mod ids;
 mod ledger;
+pub mod markers;
 mod measurements;
 mod pose_buffer;
 mod sequential;
@@ -45,6 +46,7 @@ pub use estimate::{GraphSize, RobotStatus, TeamEstimate};
 pub use graph::{InsertOutcome, SlamError, TeamGraph, TeamGraphConfig, Topology};
 pub use ids::{NodeId, PoseId, RobotId, SubmapId, SubmapPair};
 pub use ledger::{AttemptOutcome, MatchLedger};
+pub use markers::{MarkerObservation, TagOwner, TeamMarkers};
 pub use measurements::{
     FilterPose, LandmarkObservation, MatchAttempt, Measurement, RobotDetection, SubmapMatch, SubmapSwitch,
 };

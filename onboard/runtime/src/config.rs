@@ -16,6 +16,7 @@
 //! | `[vision]`, `[filter]` | matcher and odometry; the filter's inputs, latency and updates |
 //! | `[rates]` | sensor rates and the processes' fixed-rate tasks |
 //! | `[mapper]` | submap policy, voxels, depth error limit |
+//! | `[markers]` | robot detection: AprilTag detector, uncertainty model and table, the team's tag mountings |
 //! | `[link]` | team link (UDP or serial), ground link, command key |
 //! | `[realtime]`, `[recording]` | SCHED_FIFO, CPU, memory locking; bus recording |
 
@@ -54,6 +55,8 @@ pub struct RoverConfig {
     pub rates: RatesConfig,
     #[serde(default)]
     pub mapper: MapperConfig,
+    #[serde(default)]
+    pub markers: MarkersConfig,
     #[serde(default)]
     pub link: LinkConfig,
     #[serde(default)]
@@ -265,6 +268,57 @@ impl Default for VisionConfig {
             despeckle: true,
             vo_prior: true,
             prior_wait_ms: 50.0,
+        }
+    }
+}
+
+/// The marker pose uncertainty model (thesis §6.2.3, §8.1.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MarkerModelConfig {
+    /// Eq. 8.1: 1 cm and 1.3° per axis.
+    Constant,
+    /// Eq. 8.2: the constant model times `(1 + d)²`.
+    Quadratic,
+    /// The offline table alone.
+    Lut,
+    /// The online corner-noise sampling alone.
+    Online,
+    /// The thesis's model: per axis the larger of table and sampling.
+    LutOnline,
+}
+
+/// `[markers]`: robot detection from the AprilTags on the team's masts (thesis §6.2). A robot with
+/// configuration id `j` carries tags `tags_per_robot · j + k`, tag `k` at `mounting[k]` on its
+/// body; the team shares one rover design.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MarkersConfig {
+    /// Run the tag36h11 detector in the vision process.
+    pub detect: bool,
+    /// Also detect in the right image (a tag the left image misses, or sees cut by its border).
+    pub right_image: bool,
+    /// Edge of a tag's black square.
+    pub size_m: f64,
+    pub model: MarkerModelConfig,
+    /// The camera's uncertainty table (`marker-lut --out FILE`); without it the built-in table,
+    /// which is refused unless it was made for this camera.
+    pub lut: Option<PathBuf>,
+    pub tags_per_robot: u32,
+    /// Pose of tag `k` in the body frame of the robot that carries it.
+    pub mounting: Vec<calibration::PoseConfig>,
+}
+
+impl Default for MarkersConfig {
+    fn default() -> Self {
+        MarkersConfig {
+            detect: false,
+            right_image: true,
+            size_m: 0.16,
+            model: MarkerModelConfig::LutOnline,
+            lut: None,
+            tags_per_robot: 3,
+            mounting: Vec::new(),
         }
     }
 }
@@ -551,6 +605,7 @@ impl Default for RoverConfig {
             filter: FilterSettings::default(),
             rates: RatesConfig::default(),
             mapper: MapperConfig::default(),
+            markers: MarkersConfig::default(),
             link: LinkConfig::default(),
             realtime: RealtimeConfig::default(),
             recording: RecordingConfig::default(),
@@ -707,6 +762,7 @@ impl RoverConfig {
             check(in_range(v, 0.001, 10.0), "mapper.max_depth_error_m", || format!("{v} m: expected 0.001..=10"))?;
         }
 
+        self.validate_markers()?;
         self.validate_link()?;
 
         for (name, p) in [
@@ -733,6 +789,27 @@ impl RoverConfig {
             "recording.directory",
             || "must not be empty when recording.enabled".into(),
         )?;
+        Ok(())
+    }
+
+    fn validate_markers(&self) -> Result<(), ConfigError> {
+        let m = &self.markers;
+        check(m.size_m.is_finite() && m.size_m > 0.0 && m.size_m <= 2.0, "markers.size_m", || {
+            format!("{} m: expected more than 0, at most 2", m.size_m)
+        })?;
+        check((1..=16).contains(&m.tags_per_robot), "markers.tags_per_robot", || {
+            format!("{}: expected 1..=16", m.tags_per_robot)
+        })?;
+        check(m.mounting.len() <= m.tags_per_robot as usize, "markers.mounting", || {
+            format!("{} mountings for {} tags per robot", m.mounting.len(), m.tags_per_robot)
+        })?;
+        for (k, pose) in m.mounting.iter().enumerate() {
+            pose.to_isometry()
+                .map_err(|problem| ConfigError::Invalid { key: format!("markers.mounting[{k}]"), problem })?;
+        }
+        check(!m.detect || !m.mounting.is_empty(), "markers.mounting", || {
+            "required with markers.detect = true (where the team's tags sit on a robot)".into()
+        })?;
         Ok(())
     }
 

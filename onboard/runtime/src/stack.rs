@@ -94,5 +94,14 @@ pub fn mapper_config(config: &RoverConfig, rectified: StereoCalibration) -> Mapp
     if let Some(limit_m) = config.mapper.max_depth_error_m {
         mapper.integrator.max_depth_error_m = limit_m;
     }
+    mapper.markers = team_markers(config);
     mapper
+}
+
+/// The team's tag mountings of `[markers]` (validated with the configuration); `None` without
+/// any.
+pub fn team_markers(config: &RoverConfig) -> Option<mapper::slam::TeamMarkers> {
+    let m = &config.markers;
+    let t_body_marker: Vec<_> = m.mounting.iter().filter_map(|pose| pose.to_isometry().ok()).collect();
+    (!t_body_marker.is_empty()).then_some(mapper::slam::TeamMarkers { tags_per_robot: m.tags_per_robot, t_body_marker })
 }

@@ -68,6 +68,21 @@ fn the_serialized_form_loads_back_identically() {
 }
 
 #[test]
+fn marker_detection_needs_the_teams_tag_mountings() {
+    let c = RoverConfig::load(&example_path()).unwrap();
+    assert_eq!(
+        (c.markers.detect, c.markers.size_m, c.markers.tags_per_robot, c.markers.mounting.len()),
+        (false, 0.16, 3, 3)
+    );
+    let on = RoverConfig::from_toml_str("[robot]\nid = 0\n[driver]\nreplay_path = \"d\"\n[markers]\ndetect = true\n");
+    let err = on.unwrap_err().to_string();
+    assert!(err.contains("markers.mounting") && err.contains("required"), "{err}");
+    let bad = "[robot]\nid = 0\n[driver]\nreplay_path = \"d\"\n[[markers.mounting]]\ntranslation_m = [0.0, 0.0, 0.8]\nrotation_wxyz = [2.0, 0.0, 0.0, 0.0]\n";
+    let err = RoverConfig::from_toml_str(bad).unwrap_err().to_string();
+    assert!(err.contains("markers.mounting[0]") && err.contains("unit quaternion"), "{err}");
+}
+
+#[test]
 fn a_missing_file_names_the_path() {
     let err = RoverConfig::load(Path::new("/nonexistent/rover.toml")).unwrap_err();
     assert!(matches!(err, ConfigError::Read { .. }));
@@ -137,6 +152,10 @@ fn each_invalid_value_is_rejected_naming_its_key() {
             &["imu.noise.gyro_noise_density", "positive"],
         ),
         ("vision", "sgm_disparities", "100", &["vision.sgm_disparities", "multiple of 16"]),
+        ("markers", "size_m", "0.0", &["markers.size_m"]),
+        ("markers", "tags_per_robot", "0", &["markers.tags_per_robot"]),
+        ("markers", "tags_per_robot", "2", &["markers.mounting", "3 mountings for 2 tags"]),
+        ("markers", "model", "\"gaussian\"", &["markers.model", "unknown variant `gaussian`"]),
         ("vision", "sgm_threads", "0", &["vision.sgm_threads"]),
         ("filter", "vo_updates", "\"sometimes\"", &["filter.vo_updates", "unknown variant"]),
         ("filter", "vo_covariance_scale", "0.0", &["filter.vo_covariance_scale"]),

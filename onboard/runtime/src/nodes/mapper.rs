@@ -33,10 +33,12 @@ use mapper::global::{GlobalMap, GlobalMapConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
 use mapper::slam::{
     self, FilterPose, FramePose, GraphSize, InsertOutcome, Measurement, NodeId, PoseBuffer, SameStamp, SubmapPair,
-    SubmapSwitch, TeamEstimate, TeamGraph, TeamGraphConfig,
+    SubmapSwitch, TeamEstimate, TeamGraph, TeamGraphConfig, TeamMarkers,
 };
 use mapper::submap::{SubmapPolicy, Submapper};
-use msgs::{DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, TeamHeader};
+use msgs::{
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, MarkerMsg, TeamHeader,
+};
 use nalgebra::{Isometry3, Matrix3, Matrix6};
 use protocol::message::{ConstraintId, SubmapEncoding, SubmapHeader};
 use protocol::{AnyMessage, MAX_PACKET_BYTES, NodeId as WireNode, RobotId as WireRobot, SubmapId as WireSubmap};
@@ -80,6 +82,9 @@ pub struct MapperConfig {
     pub png_resolution_m: f64,
     /// Where finished submaps and the journal are kept; `None`: nothing is persisted.
     pub state_dir: Option<PathBuf>,
+    /// The team's tag mountings: detected tags become robot detections (`None`: markers are
+    /// ignored).
+    pub markers: Option<TeamMarkers>,
 }
 
 impl MapperConfig {
@@ -102,6 +107,7 @@ impl MapperConfig {
             max_submap_payload_bytes: 32 << 20,
             png_resolution_m: 0.1,
             state_dir: None,
+            markers: None,
         }
     }
 }
@@ -159,6 +165,12 @@ pub struct MapperCounters {
     pub journal_bytes_ignored: u64,
     pub submap_files_ignored: u64,
     pub submaps_restored: u64,
+    /// Tags from the vision process, the robot detections made of them, and tags refused: no
+    /// team markers configured, a tag no robot carries or the robot's own, an unusable pose or
+    /// covariance.
+    pub markers_received: u64,
+    pub marker_detections: u64,
+    pub markers_refused: u64,
 }
 
 /// Paths and sizes of [`MapperNode::write_outputs`].
@@ -785,6 +797,38 @@ impl MapperNode {
         }
     }
 
+    /// A tag from the vision process: eq. 4.7 between this robot and the tag's carrier, into the
+    /// graph and to the team like any constraint.
+    fn on_marker(&mut self, m: &MarkerMsg, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        self.counters.markers_received += 1;
+        let Some(detection) = self.marker_detection(m) else {
+            self.counters.markers_refused += 1;
+            return Ok(());
+        };
+        self.counters.marker_detections += 1;
+        self.insert_measurement(&Measurement::Detection(detection), out).map(|_| ())
+    }
+
+    fn marker_detection(&self, m: &MarkerMsg) -> Option<slam::RobotDetection> {
+        let owner = self.config.markers.as_ref()?.owner(m.tag_id)?;
+        let observed = crate::stack::protocol_robot_id(u16::try_from(owner.robot).ok()?);
+        if observed == self.own {
+            return None;
+        }
+        let covariance_cam = msgs::covariance_from_array(&m.covariance_cam)?;
+        if !slam::covariance::is_valid(&covariance_cam) {
+            return None;
+        }
+        let observation = slam::MarkerObservation {
+            stamp_ns: m.capture_stamp_ns,
+            tag_id: m.tag_id,
+            t_body_cam: m.t_body_cam.to_isometry()?,
+            t_cam_marker: m.t_cam_marker.to_isometry()?,
+            covariance_cam,
+        };
+        Some(slam::markers::robot_detection(self.own, observed, &observation, &owner.t_body_marker))
+    }
+
     fn on_frame_switch(&mut self, m: &FrameSwitchMsg) -> Result<(), NodeError> {
         let current = self.submapper.current().index;
         if m.new_frame_id <= current {
@@ -990,7 +1034,7 @@ impl Node for MapperNode {
     }
 
     fn subscriptions(&self) -> &'static [Topic] {
-        &[Topic::FilterState, Topic::Disparity, Topic::FrameSwitch, Topic::ToMapper]
+        &[Topic::FilterState, Topic::Disparity, Topic::FrameSwitch, Topic::Marker, Topic::ToMapper]
     }
 
     fn on_message(&mut self, message: Message<'_>, out: &mut dyn Outbox) -> Result<(), NodeError> {
@@ -1001,6 +1045,7 @@ impl Node for MapperNode {
                 Ok(())
             }
             Message::FrameSwitch(m) => self.on_frame_switch(m),
+            Message::Marker(m) => self.on_marker(m, out),
             Message::ToMapper(_, bytes) => self.on_to_mapper(bytes, out),
             _ => Ok(()),
         }
