@@ -31,6 +31,7 @@ pub mod geometry;
 pub mod image;
 pub mod keyframes;
 pub mod klt;
+pub mod marker_pose;
 pub mod obstacles;
 pub mod odometry;
 pub mod pyramid;
