@@ -403,6 +403,17 @@ fn tag_on_the_bus(
     };
     node.on_message(Message::Marker(&marker), out).unwrap();
     assert_eq!(node.counters().marker_detections, 1, "the tag became a detection");
+    // Within the 10 s interval another image's tags of the same robot stay out, and so does a tag
+    // beyond the table's 7 m; the robot's own tags and a tag of a robot beyond the protocol's ids are refused.
+    let later = MarkerMsg { capture_stamp_ns: stamp_ns + 1_000_000_000, ..marker };
+    let far = MarkerMsg { capture_stamp_ns: stamp_ns + 20_000_000_000, distance_m: 7.5, ..marker };
+    let own = MarkerMsg { tag_id: 3 * u32::from(ids[0] - 1), ..later };
+    let unknown = MarkerMsg { tag_id: 3 * 239, ..later };
+    for m in [later, far, own, unknown] {
+        node.on_message(Message::Marker(&m), out).unwrap();
+    }
+    let c = node.counters();
+    assert_eq!((c.markers_received, c.marker_detections, c.markers_skipped, c.markers_refused), (5, 1, 2, 2));
 }
 
 /// The team's three tag mountings (any rigid poses do: the detection removes them again).

@@ -95,6 +95,8 @@ pub fn mapper_config(config: &RoverConfig, rectified: StereoCalibration) -> Mapp
         mapper.integrator.max_depth_error_m = limit_m;
     }
     mapper.markers = team_markers(config);
+    mapper.marker_min_interval_ns = (config.markers.min_interval_s * 1e9) as u64;
+    mapper.marker_max_distance_m = config.markers.max_distance_m;
     mapper
 }
 

@@ -85,6 +85,10 @@ pub struct MapperConfig {
     /// The team's tag mountings: detected tags become robot detections (`None`: markers are
     /// ignored).
     pub markers: Option<TeamMarkers>,
+    /// One image's detections of a robot per this interval enter the graph; farther tags are
+    /// not used.
+    pub marker_min_interval_ns: u64,
+    pub marker_max_distance_m: f64,
 }
 
 impl MapperConfig {
@@ -108,6 +112,8 @@ impl MapperConfig {
             png_resolution_m: 0.1,
             state_dir: None,
             markers: None,
+            marker_min_interval_ns: 10_000_000_000,
+            marker_max_distance_m: 7.0,
         }
     }
 }
@@ -171,6 +177,8 @@ pub struct MapperCounters {
     pub markers_received: u64,
     pub marker_detections: u64,
     pub markers_refused: u64,
+    /// Tags left out by the interval or the distance limit.
+    pub markers_skipped: u64,
 }
 
 /// Paths and sizes of [`MapperNode::write_outputs`].
@@ -199,6 +207,8 @@ struct Outgoing {
 pub struct MapperNode {
     config: MapperConfig,
     own: slam::RobotId,
+    /// Capture stamp of the last image whose tags of a robot entered the graph, per robot.
+    marker_last_ns: BTreeMap<slam::RobotId, u64>,
     own_wire: WireRobot,
     geometry: StereoGeometry,
     submapper: Submapper,
@@ -266,6 +276,7 @@ impl MapperNode {
         let integrator = DepthIntegrator::new(config.integrator, geometry);
         let mut node = MapperNode {
             own,
+            marker_last_ns: BTreeMap::new(),
             own_wire,
             geometry,
             submapper: Submapper::new(own, config.policy, integrator),
@@ -805,6 +816,16 @@ impl MapperNode {
             self.counters.markers_refused += 1;
             return Ok(());
         };
+        let last = self.marker_last_ns.get(&detection.observed).copied();
+        // Every tag of the image that opened an interval goes in (they share the robot poses).
+        let due = last.is_none_or(|l| {
+            m.capture_stamp_ns == l || m.capture_stamp_ns >= l.saturating_add(self.config.marker_min_interval_ns)
+        });
+        if !due || !(f64::from(m.distance_m) <= self.config.marker_max_distance_m) {
+            self.counters.markers_skipped += 1;
+            return Ok(());
+        }
+        self.marker_last_ns.insert(detection.observed, m.capture_stamp_ns);
         self.counters.marker_detections += 1;
         self.insert_measurement(&Measurement::Detection(detection), out).map(|_| ())
     }
@@ -812,7 +833,9 @@ impl MapperNode {
     fn marker_detection(&self, m: &MarkerMsg) -> Option<slam::RobotDetection> {
         let owner = self.config.markers.as_ref()?.owner(m.tag_id)?;
         let observed = crate::stack::protocol_robot_id(u16::try_from(owner.robot).ok()?);
-        if observed == self.own {
+        // A carrier beyond the protocol's robot ids could never hear about it.
+        let wire = u8::try_from(observed).ok().map(WireRobot)?;
+        if observed == self.own || !WireNode::from(wire).is_robot() {
             return None;
         }
         let covariance_cam = msgs::covariance_from_array(&m.covariance_cam)?;
