@@ -949,3 +949,8 @@ mod decoder_is_total {
         }
     }
 }
+
+#[test]
+fn the_commands_default_camera_is_the_simulators_rover_camera() {
+    assert_eq!(vision::marker_pose::lut::sim_rover_camera(), sim_camera());
+}

@@ -145,6 +145,40 @@ impl LutParams {
     }
 }
 
+impl LutParams {
+    /// The defaults of the `marker-lut` command for a camera, tag size and grid size: tag36h11 id
+    /// 0, Δp = 0.5 px, [`RenderConfig::default`], noise seed 1, the thesis's grid ranges, a 3 × 3
+    /// median filter, a 5° flip threshold, plain IPPE.
+    pub fn command_defaults(camera: CameraModel, tag_size_m: f64, grid_size: u32, detector: String) -> Self {
+        LutParams {
+            camera,
+            tag_size_m,
+            tag_id: 0,
+            delta_px: 0.5,
+            render: RenderConfig::default(),
+            noise_seed: 1,
+            grid: LutGrid::thesis(grid_size),
+            median_kernel: 3,
+            flip_threshold_deg: 5.0,
+            pnp_refine_iterations: 0,
+            detector,
+        }
+    }
+}
+
+/// The simulator's rover camera at full resolution (`sim::camera::StereoCamera::narrow()`, the
+/// camera of every scenario preset at `downscale = 1`): 1024 × 508, horizontal field of view
+/// 50.6°, so `f = 512 / tan(25.3°) ≈ 1083.1` px, principal point at the image centre
+/// (`(w − 1)/2`, `(h − 1)/2`).
+pub fn sim_rover_camera() -> CameraModel {
+    let f = 0.5 * 1024.0 / (0.5 * 50.6f64.to_radians()).tan();
+    CameraModel {
+        width_px: 1024,
+        height_px: 508,
+        intrinsics: hal::sensor::Pinhole { fx_px: f, fy_px: f, cx_px: 511.5, cy_px: 253.5 },
+    }
+}
+
 /// Why a table could not be built.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum LutError {
