@@ -164,8 +164,21 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         inliers: 40,
         flags: VoDeltaMsg::HAS_DELTA,
     };
-    let marker =
-        MarkerMsg { capture_stamp_ns: stamp_ns, t_cam_marker: pose(), covariance: [0.0; 36], tag_id: 3, reserved: 0 };
+    let marker = MarkerMsg {
+        capture_stamp_ns: stamp_ns,
+        t_body_cam: Pose::IDENTITY,
+        t_cam_marker: pose(),
+        covariance_cam: [0.0; 36],
+        corners_px: [[10.0, 10.0], [20.0, 10.0], [20.0, 20.0], [10.0, 20.0]],
+        tag_id: 3,
+        hamming: 0,
+        decision_margin: 80.0,
+        ambiguity_ratio: 4.0,
+        distance_m: 3.0,
+        tilt_rad: 0.2,
+        camera: MarkerMsg::LEFT,
+        model: 0,
+    };
     let state = FilterStateMsg {
         stamp_ns,
         t_local_body: pose(),

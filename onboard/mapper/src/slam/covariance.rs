@@ -8,7 +8,7 @@ use nalgebra::{Isometry3, Matrix3, Matrix6, SymmetricEigen};
 
 #[cfg(test)]
 #[path = "../../../graph/src/numdiff.rs"]
-mod numdiff;
+pub(crate) mod numdiff;
 
 /// A filter pose covariance (`[δt local; δθ body]`) in the graph's convention.
 pub fn from_filter(t_local_body: &Isometry3<f64>, covariance: &Matrix6<f64>) -> Matrix6<f64> {

@@ -94,15 +94,11 @@ pub fn robot_detection(
 }
 
 #[cfg(test)]
-#[path = "../../../graph/src/numdiff.rs"]
-mod numdiff;
-
-#[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
+    use crate::slam::covariance::numdiff::{self, STEP, Tolerance};
     use nalgebra::{Const, Translation3, UnitQuaternion, Vector3, Vector6};
-    use numdiff::{STEP, Tolerance};
 
     fn pose(t: [f64; 3], axis: [f64; 3], angle: f64) -> Isometry3<f64> {
         Isometry3::from_parts(

@@ -821,7 +821,9 @@ impl MapperNode {
         let due = last.is_none_or(|l| {
             m.capture_stamp_ns == l || m.capture_stamp_ns >= l.saturating_add(self.config.marker_min_interval_ns)
         });
-        if !due || !(f64::from(m.distance_m) <= self.config.marker_max_distance_m) {
+        // A NaN distance is out of range too.
+        let in_range = f64::from(m.distance_m) <= self.config.marker_max_distance_m;
+        if !due || !in_range {
             self.counters.markers_skipped += 1;
             return Ok(());
         }
