@@ -9,6 +9,9 @@
 //! - [`depth`], [`obstacles`]: depth images and obstacle classification on them (thesis §5.1.1):
 //!   negative edges, stereo-error-adaptive steps on a 5 cm height map, the rolling local map.
 //! - [`depth_pipeline`]: the one SGM → speckle filter → depth sequence ([`DepthPipeline`]).
+//! - [`apriltag`]: tag36h11 detection of the robots' markers ([`apriltag::TagDetector`]).
+//! - [`marker_pose`]: a marker's pose from its corners (IPPE, both planar solutions) and its
+//!   uncertainty (thesis §6.2.3: constant, quadratic, look-up table, online sampling).
 //!
 //! # Frames and conventions
 //!
@@ -21,14 +24,18 @@
 //! `t_true = t̂ + δt` (in frame `a`) and `R_true = R̂ · Exp(δθ)` (δθ in frame `b`).
 //!
 //! This crate does no I/O: images come in as borrowed slices ([`ImageView`], [`StereoView`]), results
-//! go out as values.
+//! go out as values. (The `cli` feature, on by default and off in the firmware, adds
+//! `image_file`, PNG/JPEG reading for the tools, tests and benchmarks.)
 
+pub mod apriltag;
 pub mod delta;
 pub mod depth;
 pub mod depth_pipeline;
 pub mod features;
 pub mod geometry;
 pub mod image;
+#[cfg(feature = "cli")]
+pub mod image_file;
 pub mod keyframes;
 pub mod klt;
 pub mod marker_pose;

@@ -59,6 +59,7 @@ use super::ippe::{PnpOptions, solve_square};
 use super::render::{CameraModel, RenderConfig, TagCells, render_tag};
 use super::sampling::{SAMPLE_SETS, perturbed_corners};
 use super::{DOFS, pose_error};
+use crate::apriltag::{TagDetector, TagDetectorConfig};
 use crate::image::ImageView;
 
 /// File magic and the format version this code writes and reads.
@@ -176,6 +177,25 @@ pub fn sim_rover_camera() -> CameraModel {
         width_px: 1024,
         height_px: 508,
         intrinsics: hal::sensor::Pinhole { fx_px: f, fy_px: f, cx_px: 511.5, cy_px: 253.5 },
+    }
+}
+
+/// [`sim_rover_camera`] as the simulator renders it at `downscale` (`sim::camera::StereoCamera::
+/// downscaled`): sizes and focal length divided, the principal point kept on the same scene point
+/// (`(c + 0.5) / k − 0.5`).
+pub fn sim_rover_camera_downscaled(downscale: u32) -> CameraModel {
+    let full = sim_rover_camera();
+    let k = f64::from(downscale.max(1));
+    let i = &full.intrinsics;
+    CameraModel {
+        width_px: (full.width_px / downscale.max(1)).max(1),
+        height_px: (full.height_px / downscale.max(1)).max(1),
+        intrinsics: hal::sensor::Pinhole {
+            fx_px: i.fx_px / k,
+            fy_px: i.fy_px / k,
+            cx_px: (i.cx_px + 0.5) / k - 0.5,
+            cy_px: (i.cy_px + 0.5) / k - 0.5,
+        },
     }
 }
 
@@ -769,6 +789,24 @@ impl<'a> Reader<'a> {
     fn f64(&mut self) -> Result<f64, LutDecodeError> {
         Ok(f64::from_le_bytes(self.array()?))
     }
+}
+
+/// How a table header names the AprilTag detector: its type, family and configuration.
+pub fn apriltag_description(config: &TagDetectorConfig) -> String {
+    format!("vision::apriltag::TagDetector tag36h11 {config:?}")
+}
+
+/// The corners of the first detection of `tag_id` in `image` (AprilTag corner order): the corner
+/// detector of the `marker-lut` command.
+pub fn apriltag_corners(detector: &mut TagDetector, image: ImageView<'_>, tag_id: u32) -> Option<[[f64; 2]; 4]> {
+    detector.detect(image).iter().find(|d| d.id == tag_id).map(|d| d.corners_px)
+}
+
+/// The `marker-lut` command's defaults: [`LutParams::command_defaults`] for the simulator's rover
+/// camera at full resolution ([`sim_rover_camera`]), a 16 cm tag, the 200 × 200 grid and the
+/// detector's default configuration.
+pub fn default_command_params() -> LutParams {
+    LutParams::command_defaults(sim_rover_camera(), 0.16, 200, apriltag_description(&TagDetectorConfig::default()))
 }
 
 #[cfg(test)]

@@ -43,7 +43,7 @@ use nalgebra::{Isometry3, Vector3};
 pub use ippe::{PnpError, PnpOptions, PnpSolution, SquarePnp, solve_square};
 pub use lut::{LutDecodeError, LutError, LutGrid, LutParams, MarkerLut};
 pub use models::{
-    CONSTANT_VARIANCES, MarkerPose, MarkerPoseConfig, MarkerPoseError, ROTATION_GATE_DEG, UncertaintyModel,
+    CONSTANT_VARIANCES, MarkerPose, MarkerPoseConfig, MarkerPoseError, ROTATION_GATE_DEG, UncertaintyModel, check_lut,
     estimate_marker_pose, estimate_marker_pose_with,
 };
 pub use sampling::{PoseSpread, sample_pose_spread};

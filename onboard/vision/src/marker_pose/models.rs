@@ -51,6 +51,16 @@ impl UncertaintyModel {
         matches!(self, UncertaintyModel::LutOnly | UncertaintyModel::LutAndOnline)
     }
 
+    /// The model's number in messages (`msgs::MarkerMsg::model`): its index in [`Self::ALL`].
+    pub fn code(self) -> u32 {
+        Self::ALL.iter().position(|&m| m == self).unwrap_or(0) as u32
+    }
+
+    /// The model of a message's number, `None` for an unknown one.
+    pub fn from_code(code: u32) -> Option<Self> {
+        Self::ALL.get(code as usize).copied()
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             UncertaintyModel::Constant => "constant",
@@ -184,7 +194,8 @@ pub fn turn_xy(sigmas: &[f64; DOFS], beta: f64) -> [f64; DOFS] {
     out
 }
 
-fn check_lut(lut: &MarkerLut, intrinsics: &Pinhole, tag_size_m: f64) -> Result<(), MarkerPoseError> {
+/// Refuses a table made for another camera (intrinsics to 1e-6) or tag size.
+pub fn check_lut(lut: &MarkerLut, intrinsics: &Pinhole, tag_size_m: f64) -> Result<(), MarkerPoseError> {
     let p = lut.params();
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1.0);
     let k = &p.camera.intrinsics;
