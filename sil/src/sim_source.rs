@@ -17,11 +17,12 @@
 //! downscale = 4       # 1024x508 / downscale
 //! ```
 
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use hal::sensor::{SensorSource, StereoCalibration};
 use onboard::config::calibration::PoseConfig;
-use onboard::config::{CalibrationConfig, DriverKind, ImuNoiseConfig, ModeConfig, RoverConfig};
+use onboard::config::{CalibrationConfig, DriverKind, ImuNoiseConfig, MarkerModelConfig, ModeConfig, RoverConfig};
 use onboard::sensors::{FirmwareSources, SensorSetupError, SourceProvider};
 use serde::{Deserialize, Serialize};
 use sim::driver::SimSensorSource;
@@ -155,13 +156,27 @@ pub fn configure_sim_robot(
     // mapped range the same (about 4.5 m on the LRU head).
     let default_limit = mapper::integrate::IntegratorConfig::default().max_depth_error_m;
     config.mapper.max_depth_error_m = Some(default_limit * f64::from(sim.downscale.max(1)));
-    configure_sim_markers(config, scenario);
+    configure_sim_markers(config, scenario, &calibration);
     validate_sim_rates(config)
 }
 
+/// Where the marker uncertainty tables of the simulator's cameras are kept (`marker-lut
+/// --downscale K`, one per rendering resolution; vision README "Robot markers").
+pub const SIM_MARKER_LUT_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../onboard/vision/luts");
+
+/// The committed table for a simulated camera of `width_px × height_px` and `size_m` tags, if
+/// there is one (the vision node refuses it anyway if it was made for other intrinsics).
+pub fn sim_marker_lut(width_px: u32, height_px: u32, size_m: f64) -> Option<PathBuf> {
+    let size_cm = (size_m * 100.0).round() as u32;
+    let path = Path::new(SIM_MARKER_LUT_DIR).join(format!("tag36h11_{size_cm}cm_sim_rover_{width_px}x{height_px}.lut"));
+    path.exists().then_some(path)
+}
+
 /// The team's tag mountings as the rover design states them (the simulator's rovers are all
-/// alike: tag `3j + k` of robot `j` at the same place for every `j`), and the tag size.
-pub fn configure_sim_markers(config: &mut RoverConfig, scenario: &Scenario) {
+/// alike: tag `3j + k` of robot `j` at the same place for every `j`), the tag size, and the
+/// detector on: the thesis's model (table + online sampling) where the robot's camera has a
+/// table, online sampling alone where it has none (the wide-angle and the flyer's cameras).
+pub fn configure_sim_markers(config: &mut RoverConfig, scenario: &Scenario, camera: &StereoCalibration) {
     let Some(rover) = scenario.robots.iter().find(|r| r.model.markers.len() == 3) else {
         config.markers.mounting.clear();
         config.markers.detect = false;
@@ -172,6 +187,10 @@ pub fn configure_sim_markers(config: &mut RoverConfig, scenario: &Scenario) {
     config.markers.tags_per_robot = 3;
     config.markers.size_m = markers[0].size_m;
     config.markers.mounting = markers.iter().map(|m| PoseConfig::from_isometry(&m.t_body_marker)).collect();
+    config.markers.detect = true;
+    config.markers.lut = sim_marker_lut(camera.left.width_px, camera.left.height_px, config.markers.size_m);
+    config.markers.model =
+        if config.markers.lut.is_some() { MarkerModelConfig::LutOnline } else { MarkerModelConfig::Online };
 }
 
 /// The simulator fires every sensor on the IMU's sample grid.

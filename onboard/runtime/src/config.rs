@@ -301,8 +301,8 @@ pub struct MarkersConfig {
     /// Edge of a tag's black square.
     pub size_m: f64,
     pub model: MarkerModelConfig,
-    /// The camera's uncertainty table (`marker-lut --out FILE`); without it the built-in table,
-    /// which is refused unless it was made for this camera.
+    /// The camera's uncertainty table (`marker-lut --out FILE`), required by the `lut` and
+    /// `lut_online` models; refused at start-up unless it was made for this camera and tag size.
     pub lut: Option<PathBuf>,
     pub tags_per_robot: u32,
     /// Pose of tag `k` in the body frame of the robot that carries it.
@@ -822,6 +822,10 @@ impl RoverConfig {
             pose.to_isometry()
                 .map_err(|problem| ConfigError::Invalid { key: format!("markers.mounting[{k}]"), problem })?;
         }
+        let needs_lut = matches!(m.model, MarkerModelConfig::Lut | MarkerModelConfig::LutOnline);
+        check(!m.detect || !needs_lut || m.lut.is_some(), "markers.lut", || {
+            format!("required by markers.model = {:?} (marker-lut --out FILE makes one for a camera)", m.model)
+        })?;
         check(!m.detect || !m.mounting.is_empty(), "markers.mounting", || {
             "required with markers.detect = true (where the team's tags sit on a robot)".into()
         })?;

@@ -2,13 +2,18 @@
 //! ([`crate::process::node_main`]), the lockstep runners and `onboard vio` get their vision,
 //! filter and mapper from, so that all of them run the same code with the same settings.
 
+use std::sync::Arc;
+
 use filter::FilterConfig;
 use hal::sensor::StereoCalibration;
+use vision::apriltag::TagDetectorConfig;
+use vision::marker_pose::{MarkerLut, UncertaintyModel};
 
-use crate::config::{RoverConfig, VoUpdatesConfig};
+use crate::config::{MarkerModelConfig, RoverConfig, VoUpdatesConfig};
 use crate::nodes::NodeError;
 use crate::nodes::filter::{FilterNode, FilterNodeOptions};
 use crate::nodes::mapper::MapperConfig;
+use crate::nodes::markers::MarkerOptions;
 use crate::nodes::vision::{VisionNode, VisionNodeOptions};
 use crate::sensors::SensorSetup;
 use crate::vio::{VioOptions, VoUpdates};
@@ -67,7 +72,40 @@ pub fn vision_options(config: &RoverConfig, setup: &SensorSetup) -> VisionNodeOp
 }
 
 pub fn vision_node(config: &RoverConfig, setup: &SensorSetup) -> Result<VisionNode, NodeError> {
-    VisionNode::new(&setup.calibration, vision_options(config, setup))
+    let mut options = vision_options(config, setup);
+    options.markers = marker_options(config).map_err(|reason| NodeError::Failed { node: "vision", reason })?;
+    VisionNode::new(&setup.calibration, options)
+}
+
+/// The vision node's marker detection of `[markers]` (`None` with `detect = false`), its table
+/// read from `markers.lut`.
+pub fn marker_options(config: &RoverConfig) -> Result<Option<MarkerOptions>, String> {
+    let m = &config.markers;
+    if !m.detect {
+        return Ok(None);
+    }
+    let lut = match &m.lut {
+        Some(path) => {
+            let bytes = std::fs::read(path).map_err(|e| format!("markers.lut {}: {e}", path.display()))?;
+            let lut = MarkerLut::decode(&bytes).map_err(|e| format!("markers.lut {}: {e}", path.display()))?;
+            Some(Arc::new(lut))
+        }
+        None => None,
+    };
+    let model = match m.model {
+        MarkerModelConfig::Constant => UncertaintyModel::Constant,
+        MarkerModelConfig::Quadratic => UncertaintyModel::Quadratic,
+        MarkerModelConfig::Lut => UncertaintyModel::LutOnly,
+        MarkerModelConfig::Online => UncertaintyModel::OnlineOnly,
+        MarkerModelConfig::LutOnline => UncertaintyModel::LutAndOnline,
+    };
+    Ok(Some(MarkerOptions {
+        detector: TagDetectorConfig::default(),
+        right_image: m.right_image,
+        size_m: m.size_m,
+        model,
+        lut,
+    }))
 }
 
 /// The filter node (no checkpoint: the process runner adds its path).

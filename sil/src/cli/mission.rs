@@ -7,6 +7,8 @@
 use std::ffi::OsString;
 use std::process::ExitCode;
 
+use onboard::config::MarkerModelConfig;
+
 use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
 
 const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--duration S] [--out DIR]
@@ -24,9 +26,13 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
                          default) or process (one OS process per component over iceoryx2,
                          fixed-rate tasks on the wall clock)
   --radio R              serial (57.6 kbit/s radio, default) or wifi (lossy mesh)
+  --markers M            the robots' AprilTag detector and its uncertainty model: lut_online
+                         (the thesis's, default), lut, online, quadratic, constant, or off; a
+                         camera without a table (wide-angle, flyer) uses online for the lut models
   --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
-                         ground truth with the thesis's noise models: a TEST-ONLY source until the
-                         robots' own detector and matcher exist; reports say so; lockstep runner only
+                         ground truth with the thesis's noise models: a TEST-ONLY source for
+                         comparisons, next to the robots' own detections; reports say so;
+                         lockstep runner only
   --feed ADDR            the ground station's UDP address (e.g. 127.0.0.1:7700): the robots' ground
                          links (telemetry v2, poses, constraints, submaps) go there from one socket,
                          and what it sends back (acks, commands) reaches the addressed robot;
@@ -110,6 +116,21 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                 };
             }
             Long("truth-loop-closures") => options.truth_loop_closures = true,
+            Long("markers") => {
+                options.markers = match text(&mut parser, "--markers")?.as_str() {
+                    "off" => None,
+                    "constant" => Some(MarkerModelConfig::Constant),
+                    "quadratic" => Some(MarkerModelConfig::Quadratic),
+                    "lut" => Some(MarkerModelConfig::Lut),
+                    "online" => Some(MarkerModelConfig::Online),
+                    "lut_online" => Some(MarkerModelConfig::LutOnline),
+                    other => {
+                        return Err(format!(
+                            "--markers: expected lut_online, lut, online, quadratic, constant or off, got {other:?}"
+                        ));
+                    }
+                };
+            }
             Long("feed") => {
                 let v = text(&mut parser, "--feed")?;
                 let v = v.strip_prefix("udp://").unwrap_or(&v);
@@ -148,7 +169,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     }
     if options.truth_loop_closures && options.runner == Runner::Process {
         return Err(
-            "--truth-loop-closures needs --runner lockstep (the process runner has no loop-closure source)".into()
+            "--truth-loop-closures needs --runner lockstep (the test-only source reads the lockstep world)".into()
         );
     }
     if !options.faults.is_empty() && options.runner != Runner::Process {

@@ -29,7 +29,9 @@ use sim::driver::SimSensorSource;
 use sim::world::World;
 
 use super::report::{MissionReport, ProcessReport, RobotReport};
-use super::world::{mission_world, robot_config, robot_id, truth_at_captures, truth_in_own_frame};
+use super::world::{
+    inter_robot_errors, marker_model_name, mission_world, robot_config, robot_id, truth_at_captures, truth_in_own_frame,
+};
 use super::{MissionError, MissionOptions, RadioPreset, write_outputs};
 use crate::ground_end::GroundEnd;
 use crate::truth_closures::TruthLoopClosures;
@@ -208,8 +210,35 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     let mut robot_reports = Vec::new();
     let mut processes = Vec::new();
     for r in &mut robots {
+        r.stack.finish(end_ns).map_err(|e| MissionError::Node(self_robot(r.robot), e))?;
+    }
+    // Each robot's filter poses, the latest that every other robot's graph can place (eq. 4.6:
+    // its submap origin connected there): where the team thinks its members are.
+    let filter_poses: Vec<Vec<mapper::slam::FilterPose>> = robots
+        .iter()
+        .map(|r| {
+            let buffer = r.stack.mapper.graph().pose_buffer(robot_id(r.robot));
+            buffer.map(|b| b.range(0, u64::MAX).copied().collect()).unwrap_or_default()
+        })
+        .collect();
+    let placed: Vec<Vec<(u16, u64, nalgebra::Isometry3<f64>)>> = robots
+        .iter()
+        .map(|observer| {
+            let graph = observer.stack.mapper.graph();
+            filter_poses
+                .iter()
+                .filter_map(|poses| {
+                    poses
+                        .iter()
+                        .rev()
+                        .filter(|p| p.robot != robot_id(observer.robot))
+                        .find_map(|p| Some((p.robot, p.stamp_ns, graph.online_pose(p)?)))
+                })
+                .collect()
+        })
+        .collect();
+    for (r, placed) in robots.iter_mut().zip(&placed) {
         let robot = r.robot;
-        r.stack.finish(end_ns).map_err(|e| MissionError::Node(self_robot(robot), e))?;
         let stack = &mut r.stack;
         let summary = stack.filter.summary();
         let estimate = stack.mapper.online_trajectory().to_vec();
@@ -218,6 +247,9 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             .and_then(|init| truth_in_own_frame(&world, robot, init, &truth_at_captures(&world, robot)));
         let robot_dir = out.join(format!("robot{robot}"));
         let written = write_outputs(&robot_dir, &mut stack.mapper, &estimate, truth.as_deref())?;
+        let inter_robot_error_m = summary
+            .initialized_ns
+            .map_or_else(Default::default, |init| inter_robot_errors(&world, robot, init, placed));
         let comms = comms(stack)?.stats();
         robot_reports.push(RobotReport {
             robot: robot_id(robot),
@@ -231,6 +263,9 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             imu_received: summary.imu_received,
             imu_lost: summary.imu_lost,
             bytes_sent_by_class: comms.sent_by_class.iter().map(|(k, v)| ((*k).to_owned(), v.wire_bytes)).collect(),
+            markers_published: stack.vision.summary().markers.published,
+            marker_detections: stack.mapper.counters().marker_detections,
+            inter_robot_error_m,
         });
         for (name, seconds) in NODE_NAMES.iter().zip(&stack.times.seconds) {
             processes.push(ProcessReport::lockstep(robot_id(robot), name, *seconds));
@@ -244,6 +279,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         duration_s: options.duration_s,
         wall_s: wall.elapsed().as_secs_f64(),
         truth_loop_closures: options.truth_loop_closures,
+        marker_model: marker_model_name(options),
         robots: robot_reports,
         processes,
     };

@@ -61,6 +61,9 @@ pub struct MissionOptions {
     pub radio: RadioPreset,
     /// Loop closures from the simulator's ground truth (test-only source; reported as such).
     pub truth_loop_closures: bool,
+    /// The robots' marker detector and its uncertainty model; `None`: no detector (the
+    /// simulator's cameras have tables for the `lut` models at every downscale).
+    pub markers: Option<onboard::config::MarkerModelConfig>,
     /// The ground station's UDP address; `None`: an in-process stand-in acknowledges the
     /// robots' ground links. Either way the ground traffic is recorded in `out/ground_feed.log`.
     pub feed: Option<SocketAddr>,
@@ -89,6 +92,7 @@ impl Default for MissionOptions {
             runner: Runner::Lockstep,
             radio: RadioPreset::SerialRadio,
             truth_loop_closures: false,
+            markers: Some(onboard::config::MarkerModelConfig::LutOnline),
             feed: None,
             ground_key: None,
             ground_link: crate::relay::GroundLinkEmulation::default(),

@@ -39,7 +39,8 @@ use sim::world::World;
 
 use super::report::{MissionReport, ProcessReport, RobotReport, TaskTiming};
 use super::world::{
-    mission_world, robot_config as mission_robot_config, robot_id, truth_at_captures, truth_in_own_frame,
+    inter_robot_errors, marker_model_name, mission_world, robot_config as mission_robot_config, robot_id,
+    truth_at_captures, truth_in_own_frame,
 };
 use super::{MissionError, MissionOptions, RadioPreset, score};
 use crate::ground_end::GroundEnd;
@@ -379,6 +380,7 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         duration_s: options.duration_s,
         wall_s: wall.elapsed().as_secs_f64(),
         truth_loop_closures: options.truth_loop_closures,
+        marker_model: marker_model_name(options),
         robots,
         processes,
     };
@@ -478,6 +480,26 @@ fn robot_report(
         (None, _) => score_error = Some("the filter never initialized".to_owned()),
         _ => score_error = Some("no online estimate or no ground truth was written".to_owned()),
     }
+    let latest: Vec<(u16, u64, nalgebra::Isometry3<f64>)> = mapper
+        .get("robots_latest")
+        .and_then(Value::as_array)
+        .map(|a| {
+            a.iter()
+                .filter_map(|r| {
+                    let p: Vec<f64> = r.get("position_m")?.as_array()?.iter().filter_map(Value::as_f64).collect();
+                    let robot = u16::try_from(r.get("robot")?.as_u64()?).ok()?;
+                    let position = nalgebra::Translation3::new(*p.first()?, *p.get(1)?, *p.get(2)?);
+                    Some((
+                        robot,
+                        r.get("stamp_ns")?.as_u64()?,
+                        nalgebra::Isometry3::from_parts(position, Default::default()),
+                    ))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let inter_robot_error_m =
+        initialized_ns.map_or_else(Default::default, |init| inter_robot_errors(world, robot, init, &latest));
     let connected = mapper
         .get("connected")
         .and_then(Value::as_array)
@@ -500,6 +522,10 @@ fn robot_report(
         imu_received: u64_at(&filter, "imu_received"),
         imu_lost: u64_at(&filter, "imu_lost"),
         bytes_sent_by_class,
+        // What reached the mapper of what vision published (the bus loses nothing in between).
+        markers_published: u64_at(&mapper, "markers_received"),
+        marker_detections: u64_at(&mapper, "marker_detections"),
+        inter_robot_error_m,
     };
 
     let restarts_of = |name: &str| {

@@ -25,6 +25,13 @@ pub struct RobotReport {
     pub imu_lost: u64,
     /// Bytes this robot put on its links, by protocol message class.
     pub bytes_sent_by_class: BTreeMap<String, u64>,
+    /// Tags the vision process published (after the 75° gate), and the robot detections the
+    /// mapper made of them (one image per robot and interval, within range).
+    pub markers_published: u64,
+    pub marker_detections: u64,
+    /// Per connected robot: distance between its latest pose in this robot's graph and its true
+    /// pose at that stamp in this robot's frame (the team's relative localization).
+    pub inter_robot_error_m: BTreeMap<u16, f64>,
 }
 
 /// The fixed-rate task of one process, as its task file reports it (process runner only: the
@@ -69,6 +76,8 @@ pub struct MissionReport {
     /// Loop closures came from the simulator's ground truth (test-only source), not from the
     /// robots' own detector and matcher.
     pub truth_loop_closures: bool,
+    /// The marker uncertainty model of the robots' detector; `None`: no detector ran.
+    pub marker_model: Option<String>,
     pub robots: Vec<RobotReport>,
     pub processes: Vec<ProcessReport>,
 }
@@ -110,23 +119,38 @@ impl MissionReport {
     }
 
     /// The sources of loop closures (robot detections, submap matches) that ran in the mission.
-    pub fn loop_closure_sources(&self) -> Vec<&'static str> {
-        if self.truth_loop_closures {
-            vec!["simulator ground truth (test-only: sim::truth_constraints)"]
-        } else {
-            Vec::new()
+    pub fn loop_closure_sources(&self) -> Vec<String> {
+        let mut sources = Vec::new();
+        if let Some(model) = &self.marker_model {
+            let tags: u64 = self.robots.iter().map(|r| r.markers_published).sum();
+            let detections: u64 = self.robots.iter().map(|r| r.marker_detections).sum();
+            sources.push(format!(
+                "robot detections (AprilTag tag36h11, on-board, {model} model): {tags} tags seen, {detections} in the graphs"
+            ));
         }
+        if self.truth_loop_closures {
+            sources.push("simulator ground truth (test-only: sim::truth_constraints)".to_owned());
+        }
+        sources
     }
 
     fn loop_closure_line(&self) -> String {
         let sources = self.loop_closure_sources();
         if sources.is_empty() {
-            "loop closures: none ran (no robot detector or submap matcher in the firmware yet): each robot's \
-             graph holds only its own odometry"
+            "loop closures: none ran (robot detector off, no submap matcher in the firmware yet): each \
+             robot's graph holds only its own odometry"
                 .to_owned()
         } else {
-            format!("loop closures: {}", sources.join(", "))
+            format!("loop closures: {}", sources.join("; "))
         }
+    }
+
+    /// Inter-robot errors as `robot→other d m` items.
+    fn inter_robot_text(r: &RobotReport) -> String {
+        if r.inter_robot_error_m.is_empty() {
+            return "-".to_owned();
+        }
+        r.inter_robot_error_m.iter().map(|(other, e)| format!("{other}: {e:.2} m")).collect::<Vec<_>>().join(", ")
     }
 
     /// `report.json`: the team aggregate at the top level, then per robot and per process.
@@ -156,6 +180,9 @@ impl MissionReport {
                     "imu_received": r.imu_received,
                     "imu_lost": r.imu_lost,
                     "bytes_sent_by_class": r.bytes_sent_by_class,
+                    "markers_published": r.markers_published,
+                    "marker_detections": r.marker_detections,
+                    "inter_robot_error_m": r.inter_robot_error_m,
                 })
             })
             .collect();
@@ -190,6 +217,7 @@ impl MissionReport {
             "duration_s": self.duration_s,
             "wall_s": self.wall_s,
             "truth_loop_closures": self.truth_loop_closures,
+            "marker_model": self.marker_model,
             "loop_closure_sources": self.loop_closure_sources(),
             "distance_m": team.map(|t| t.distance_m),
             "mean_error_m": team.map(|t| t.mean_error_m),
@@ -219,9 +247,8 @@ impl MissionReport {
         );
         if self.truth_loop_closures {
             let _ = writeln!(out, "LOOP CLOSURES FROM GROUND TRUTH (sim::truth_constraints, test-only)");
-        } else {
-            let _ = writeln!(out, "{}", self.loop_closure_line());
         }
+        let _ = writeln!(out, "{}", self.loop_closure_line());
         let _ = writeln!(
             out,
             "robot  distance  mean err  rmse     max err  final err  final %  graph (nodes/factors)  connected  submaps  imu lost"
@@ -253,6 +280,18 @@ impl MissionReport {
                 }
             }
         }
+        if self.marker_model.is_some() {
+            for r in &self.robots {
+                let _ = writeln!(
+                    out,
+                    "robot {}: {} tags seen, {} detections in its graph; other robots' latest poses off by {}",
+                    r.robot,
+                    r.markers_published,
+                    r.marker_detections,
+                    Self::inter_robot_text(r)
+                );
+            }
+        }
         let cpu: f64 = self.processes.iter().map(|p| p.cpu_s).sum();
         let overruns = self.deadline_overruns().map_or("not measured (lockstep)".to_owned(), |n| n.to_string());
         let _ = writeln!(
@@ -282,12 +321,8 @@ impl MissionReport {
                 "**Loop closures came from the simulator's ground truth** (`sim::truth_constraints`, a \
                  test-only source with the thesis's noise models), not from the robots' own detector and matcher.\n\n",
             );
-        } else {
-            out.push_str(
-                "No loop-closure source was enabled: the robots' graphs hold their own submap chains and \
-                 the other robots' data, but nothing connects different robots.\n\n",
-            );
         }
+        let _ = writeln!(out, "{}.\n", self.loop_closure_line());
         out.push_str("## Online trajectory errors (thesis ch. 8: the estimate as the robot had it)\n\n");
         out.push_str("| robot | distance | mean | RMSE | max | final | final % | graph nodes / factors | connected | submaps finished / received | IMU lost |\n");
         out.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");
@@ -326,6 +361,22 @@ impl MissionReport {
                         r.imu_lost
                     );
                 }
+            }
+        }
+        if let Some(model) = &self.marker_model {
+            let _ = writeln!(
+                out,
+                "\n## Robot detections (on-board AprilTag detector, {model} model)\n\n| robot | tags seen | detections in its graph | other robots' latest poses off by |\n|---|---|---|---|"
+            );
+            for r in &self.robots {
+                let _ = writeln!(
+                    out,
+                    "| {} | {} | {} | {} |",
+                    r.robot,
+                    r.markers_published,
+                    r.marker_detections,
+                    Self::inter_robot_text(r)
+                );
             }
         }
         out.push_str("\n## Bytes sent per message class\n\n| robot | class | bytes |\n|---|---|---|\n");

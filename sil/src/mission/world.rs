@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use nalgebra::Isometry3;
-use onboard::config::RoverConfig;
+use onboard::config::{MarkerModelConfig, RoverConfig};
 use sim::truth_constraints::{TruthConstraintConfig, TruthConstraints};
 use sim::world::World;
 
@@ -37,6 +37,19 @@ pub fn robot_config(options: &MissionOptions, world: &World, robot: usize) -> Re
     config.robot.name = format!("robot{robot}");
     configure_sim_robot(&mut config, &sim_driver_config(options), &world.scenario, options.duration_s)
         .map_err(MissionError::Setup)?;
+    match options.markers {
+        None => config.markers.detect = false,
+        Some(model) if config.markers.detect => {
+            let needs_table = matches!(model, MarkerModelConfig::Lut | MarkerModelConfig::LutOnline);
+            if needs_table && config.markers.lut.is_none() {
+                // A camera without a table (wide-angle, flyer): the sampling alone.
+                config.markers.model = MarkerModelConfig::Online;
+            } else {
+                config.markers.model = model;
+            }
+        }
+        Some(_) => {}
+    }
     if let Some(distance_m) = options.submap_max_distance_m {
         config.mapper.submap_max_distance_m = distance_m;
     }
@@ -74,4 +87,41 @@ pub fn truth_in_own_frame(
     let t_world_own = source.true_origin(robot, initialized_ns)?;
     let t_own_world = t_world_own.inverse();
     Some(truth_world.iter().filter(|(s, _)| *s >= initialized_ns).map(|(s, t)| (*s, t_own_world * t)).collect())
+}
+
+/// Per connected other robot of `estimate` (robot index `robot`'s graph): the distance between
+/// the robot's latest pose in the graph and its true pose at that stamp, both in the own frame
+/// (the filter's first frame at `initialized_ns`, as [`truth_in_own_frame`]).
+pub fn inter_robot_errors(
+    world: &Arc<World>,
+    robot: usize,
+    initialized_ns: u64,
+    latest: &[(u16, u64, Isometry3<f64>)],
+) -> std::collections::BTreeMap<u16, f64> {
+    let source = TruthConstraints::new(Arc::clone(world), TruthConstraintConfig::default());
+    let Some(t_world_own) = source.true_origin(robot, initialized_ns) else { return Default::default() };
+    let t_own_world = t_world_own.inverse();
+    latest
+        .iter()
+        .filter(|(other, _, _)| *other != robot_id(robot))
+        .filter_map(|&(other, stamp_ns, t_own_body)| {
+            let index = usize::from(other).checked_sub(1)?;
+            let truth = t_own_world * world.robot_state(index, stamp_ns)?.t_world_body;
+            Some((other, (truth.translation.vector - t_own_body.translation.vector).norm()))
+        })
+        .collect()
+}
+
+/// The report's name of the mission's marker model (`None`: no detector).
+pub fn marker_model_name(options: &super::MissionOptions) -> Option<String> {
+    options.markers.map(|m| {
+        match m {
+            MarkerModelConfig::Constant => "constant",
+            MarkerModelConfig::Quadratic => "quadratic",
+            MarkerModelConfig::Lut => "LUT",
+            MarkerModelConfig::Online => "online",
+            MarkerModelConfig::LutOnline => "LUT + online",
+        }
+        .to_owned()
+    })
 }

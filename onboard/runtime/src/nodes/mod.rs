@@ -15,6 +15,7 @@ pub mod comms;
 pub mod driver;
 pub mod filter;
 pub mod mapper;
+pub mod markers;
 pub mod vision;
 
 use msgs::{

@@ -17,6 +17,10 @@
 //! keyframe needs a filter clone to be measured against. Each result is one
 //! [`Message::VoDelta`] with the odometry's own covariance (the filter scales it).
 //!
+//! With markers configured ([`VisionNodeOptions::markers`]), each rectified pair is also searched
+//! for the robots' tags ([`super::markers`]): one [`Message::Marker`] per tag, before the
+//! odometry of the pair.
+//!
 //! Bad payloads (slice length not matching the header, another geometry than the calibration,
 //! non-finite poses) are counted and skipped.
 //!
@@ -35,6 +39,7 @@ use nalgebra::Isometry3;
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
 use vision::{DepthOptions, DepthPipeline, Rectifier, StereoOdometry, StereoView, VoConfig, VoError, VoOutput};
 
+use super::markers::{MarkerOptions, MarkerStage, MarkerSummary};
 use super::{Message, Node, NodeError, Outbox, Topic};
 use crate::vio::VioOptions;
 
@@ -65,6 +70,8 @@ pub struct VisionNodeOptions {
     /// waits for the filter state of each capture for its prior. Without (a dataset without IMU)
     /// it runs on every pair at once, with no prior, and its chained pose is the trajectory.
     pub odometry_follows_filter: bool,
+    /// Robot-marker detection (off: `None`).
+    pub markers: Option<MarkerOptions>,
 }
 
 impl VisionNodeOptions {
@@ -79,6 +86,7 @@ impl VisionNodeOptions {
             obstacles: ObstacleConfig::default(),
             prior_wait_ns: 50_000_000,
             odometry_follows_filter: options.use_imu,
+            markers: None,
         }
     }
 }
@@ -114,6 +122,7 @@ pub struct VisionNodeSummary {
     pub errors: u64,
     /// Pairs copied out of their message to wait for their filter state (see the module docs).
     pub pairs_held: u64,
+    pub markers: MarkerSummary,
 }
 
 /// The latest filter state, for the obstacle attitude and the filter status.
@@ -139,6 +148,7 @@ pub struct VisionNode {
     depth: DepthPipeline,
     classifier: ObstacleClassifier,
     labels: PixelLabels,
+    markers: Option<MarkerStage>,
     /// Capture stamp of the pair in `frame` whose odometry has not run yet.
     pending_capture_ns: Option<u64>,
     latest: Option<LatestState>,
@@ -190,6 +200,10 @@ impl VisionNode {
             DepthOptions { sgm: options.sgm, despeckle: options.despeckle, threads: options.sgm_threads.max(1) };
         let depth = DepthPipeline::new(&rectified, depth_options).map_err(|e| failed(format!("depth: {e}")))?;
         let classifier = ObstacleClassifier::new(options.obstacles).map_err(|e| failed(e.to_string()))?;
+        let markers = match &options.markers {
+            Some(m) => Some(MarkerStage::new(m.clone(), &rectified).map_err(failed)?),
+            None => None,
+        };
         let mut frame = StereoFrame::default();
         frame.resize(rectified.left.width_px, rectified.left.height_px);
         Ok(VisionNode {
@@ -201,6 +215,7 @@ impl VisionNode {
             depth,
             classifier,
             labels: PixelLabels::default(),
+            markers,
             pending_capture_ns: None,
             latest: None,
             frame_id: None,
@@ -215,7 +230,10 @@ impl VisionNode {
     }
 
     pub fn summary(&self) -> VisionNodeSummary {
-        self.summary
+        VisionNodeSummary {
+            markers: self.markers.as_ref().map(MarkerStage::summary).unwrap_or_default(),
+            ..self.summary
+        }
     }
 
     /// The rectified calibration the odometry and the disparity maps use.
@@ -292,6 +310,10 @@ impl VisionNode {
             reserved: 0,
         })?;
         self.summary.disparity_published += 1;
+        if let Some(markers) = &mut self.markers {
+            let pair = if rectified_here { StereoView::of(&self.frame) } else { received };
+            markers.process(pair, &self.calibration, out)?;
+        }
 
         let state_known = self.states.exact(header.stamp_ns).is_some();
         let state_passed = self.latest.is_some_and(|l| l.stamp_ns > header.stamp_ns);

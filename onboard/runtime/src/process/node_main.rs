@@ -323,7 +323,9 @@ fn finish(
         Hosted::Vision(vision) => {
             let s = vision.summary();
             Ok(json!({"frames": s.frames, "vo_deltas": s.vo_deltas, "keyframes": s.keyframes,
-                      "disparity_published": s.disparity_published, "bad_stereo": s.bad_stereo}))
+                      "disparity_published": s.disparity_published, "bad_stereo": s.bad_stereo,
+                      "markers_detected": s.markers.tags_detected, "markers_published": s.markers.published,
+                      "markers_gated": s.markers.gated}))
         }
         Hosted::Filter(filter) => {
             let s = filter.summary();
@@ -367,6 +369,17 @@ fn finish(
                 "graph_nodes": written.graph.nodes,
                 "graph_factors": written.graph.factors,
                 "connected": mapper.team_estimate().connected_robots(),
+                // Connected robots' latest poses in the own frame: (id, stamp, x, y, z).
+                "robots_latest": mapper.team_estimate().robots.iter().filter(|r| r.connected)
+                    .filter_map(|r| r.latest.map(|(stamp, t)| {
+                        let p = t.translation.vector;
+                        json!({"robot": r.robot, "stamp_ns": stamp, "position_m": [p.x, p.y, p.z]})
+                    }))
+                    .collect::<Vec<_>>(),
+                "markers_received": c.markers_received,
+                "marker_detections": c.marker_detections,
+                "markers_refused": c.markers_refused,
+                "markers_skipped": c.markers_skipped,
                 "submaps_finished": c.submaps_finished,
                 "submaps_sent": c.submaps_sent,
                 "submaps_received": c.submaps_received,
