@@ -143,3 +143,28 @@ fn nasa_photos_reproduce_the_upstream_reference_corners() {
     assert_eq!(count, 47);
     assert!(worst < 1.0, "worst corner {worst} px from the upstream reference");
 }
+
+/// The `apriltag` command: JSON lines with both PnP solutions per tag, usage errors exit with 2.
+#[test]
+fn command_line_prints_detections_and_both_pose_solutions() {
+    let exe = env!("CARGO_BIN_EXE_apriltag");
+    let image = format!("{DATA}duckietown/test_image.png");
+    let pose = ["--fx", "500", "--fy", "500", "--cx", "319.5", "--cy", "239.5", "--tag-size-m", "0.1"];
+    let output = std::process::Command::new(exe).arg("--json").args(pose).arg(&image).output().unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    let line: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let detections = line["detections"].as_array().unwrap();
+    let poses = line["poses"].as_array().unwrap();
+    assert_eq!(detections.len(), 5, "{line}");
+    assert_eq!(poses.len(), detections.len());
+    for p in poses {
+        let (best, second) = (p["best"]["rms_px"].as_f64().unwrap(), p["second"]["rms_px"].as_f64());
+        // The corners fit a square to well under a pixel; the other solution fits no better.
+        assert!(best < 1.0, "{p}");
+        assert!(second.is_none_or(|s| s >= best), "{p}");
+    }
+    let partial = std::process::Command::new(exe).args(["--fx", "500", &image]).output().unwrap();
+    assert_eq!(partial.status.code(), Some(2));
+    let missing = std::process::Command::new(exe).arg(format!("{DATA}no_such_image.png")).output().unwrap();
+    assert_eq!(missing.status.code(), Some(1));
+}

@@ -113,24 +113,42 @@ fn parse_args() -> Result<Option<Args>, CliError> {
     Ok(Some(Args { images, config, runs, json, pose }))
 }
 
-// ---------------------------------------------------------------------------------------------
-// Poses. Both PnP (IPPE) solutions of a detection with their reprojection errors come from
-// `vision::marker_pose`, which is being written; until it is wired in here, the pose options
-// are refused. Wire it in `check_pose_options` (validate the intrinsics and tag size) and
-// `pose_solutions` (one JSON value per detection, printed under "poses" / after each tag).
-// ---------------------------------------------------------------------------------------------
-
-const POSE_UNAVAILABLE: &str = "pose options need vision::marker_pose";
-
-fn check_pose_options(_pose: &PoseOptions) -> Result<(), CliError> {
-    Err(CliError::Usage(POSE_UNAVAILABLE.to_owned()))
+/// Poses: both IPPE solutions of a detection (`vision::marker_pose`), best first, each as the
+/// tag in the camera frame (x right, y down, z forward; translation in m, quaternion w x y z) with
+/// its reprojection RMS, and the ratio second / best (near 1: the planar ambiguity).
+fn pinhole(pose: &PoseOptions) -> Option<(hal::sensor::Pinhole, f64)> {
+    let k = hal::sensor::Pinhole { fx_px: pose.fx?, fy_px: pose.fy?, cx_px: pose.cx?, cy_px: pose.cy? };
+    Some((k, pose.tag_size_m?))
 }
 
-fn pose_solutions(_pose: &PoseOptions, _detection: &TagDetection) -> Result<serde_json::Value, CliError> {
-    Err(CliError::Usage(POSE_UNAVAILABLE.to_owned()))
+fn check_pose_options(pose: &PoseOptions) -> Result<(), CliError> {
+    let (k, size) = pinhole(pose)
+        .ok_or_else(|| CliError::Usage("poses need all of --fx --fy --cx --cy --tag-size-m".to_owned()))?;
+    let finite = [k.fx_px, k.fy_px, k.cx_px, k.cy_px, size].iter().all(|v| v.is_finite());
+    if !finite || k.fx_px <= 0.0 || k.fy_px <= 0.0 || size <= 0.0 {
+        return Err(CliError::Usage("focal lengths and tag size must be positive and finite".to_owned()));
+    }
+    Ok(())
 }
 
-// ---------------------------------------------------------------------------------------------
+fn solution_json(s: &vision::marker_pose::PnpSolution) -> serde_json::Value {
+    let t = s.t_cam_marker.translation.vector;
+    let q = s.t_cam_marker.rotation.quaternion();
+    serde_json::json!({"t_cam_marker_m": [t.x, t.y, t.z], "q_cam_marker_wxyz": [q.w, q.i, q.j, q.k], "rms_px": s.rms_px})
+}
+
+fn pose_solutions(pose: &PoseOptions, detection: &TagDetection) -> Result<serde_json::Value, CliError> {
+    let (k, size) = pinhole(pose).ok_or_else(|| CliError::Usage("poses need the intrinsics".to_owned()))?;
+    let options = vision::marker_pose::PnpOptions::default();
+    Ok(match vision::marker_pose::solve_square(&detection.corners_px, &k, size, &options) {
+        Ok(pnp) => serde_json::json!({
+            "best": solution_json(&pnp.best),
+            "second": pnp.second.as_ref().map(solution_json),
+            "ratio": if pnp.ratio.is_finite() { serde_json::json!(pnp.ratio) } else { serde_json::Value::Null },
+        }),
+        Err(e) => serde_json::json!({"error": e.to_string()}),
+    })
+}
 
 fn detection_json(t: &TagDetection) -> serde_json::Value {
     serde_json::json!({
