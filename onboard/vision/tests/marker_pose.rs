@@ -954,3 +954,271 @@ mod decoder_is_total {
 fn the_commands_default_camera_is_the_simulators_rover_camera() {
     assert_eq!(vision::marker_pose::lut::sim_rover_camera(), sim_camera());
 }
+
+// ------------------------------------------------------------------------------------------------
+// The committed table and the models' NEES on rendered and simulated detections
+// ------------------------------------------------------------------------------------------------
+
+use vision::apriltag::{TagDetector, TagDetectorConfig};
+use vision::marker_pose::MarkerPose;
+use vision::marker_pose::lut::{apriltag_corners, default_command_params, generate_cell};
+
+/// The table `marker-lut` generated with its defaults (README: "Robot markers").
+const COMMITTED_LUT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/luts/tag36h11_16cm_sim_rover_1024x508.lut");
+
+fn committed_lut() -> MarkerLut {
+    let path = std::env::var("MARKER_LUT").unwrap_or_else(|_| COMMITTED_LUT.to_owned());
+    MarkerLut::decode(&std::fs::read(&path).unwrap_or_else(|e| panic!("{path}: {e}"))).unwrap()
+}
+
+fn close_or_both_nan(a: f32, b: f32) -> bool {
+    (a.is_nan() && b.is_nan()) || (a - b).abs() <= 1e-5 * a.abs().max(b.abs()) + 1e-9
+}
+
+/// The committed table: decodes, was made with what the command's defaults are now (camera,
+/// tag, renderer, grid, post-processing, detector configuration), its final table is its raw table
+/// post-processed, and single cells regenerate to its raw values (the raw table is stored for
+/// exactly this: a cell's raw value depends on nothing but the cell). Values are compared to a
+/// relative 1e-5 rather than bit for bit, in case another machine's libm rounds a sine
+/// differently.
+#[test]
+fn committed_table_matches_the_commands_defaults_and_regenerates() {
+    let lut = committed_lut();
+    let params = lut.params().clone();
+    assert_eq!(params, default_command_params(), "the table is out of date: regenerate it (README)");
+    let (rows, cols) = (params.grid.distances as usize, params.grid.tilts as usize);
+    assert!(same_bits(lut.table(), &post_process(lut.raw(), rows, cols, params.median_kernel as usize)));
+    let cells = cells_from_pattern(&TAG36H11_ID0_PATTERN);
+    let mut image = vec![0u8; params.camera.pixels()];
+    let mut detector = TagDetector::new(TagDetectorConfig::default()).unwrap();
+    let mut detect = |view: ImageView<'_>| apriltag_corners(&mut detector, view, 0);
+    let start = Instant::now();
+    let picks = [(0, 100), (25, 100), (60, 37), (99, 150), (140, 99), (199, 120), (120, 1), (80, 185)];
+    for (i, j) in picks {
+        let cell = generate_cell(&params, &cells, i, j, &mut detect, &mut image).unwrap();
+        let stored = lut.raw_cell(i, j).unwrap();
+        assert!(cell.iter().zip(&stored).all(|(a, b)| close_or_both_nan(*a, *b)), "({i}, {j}): {cell:?} vs {stored:?}");
+    }
+    println!("{} cells regenerated in {:.2} s", picks.len(), start.elapsed().as_secs_f64());
+
+    // Symmetry in Φ: raw cell (i, j) against (i, n − 1 − j), where both were detected.
+    let mut ratios: Vec<Vec<f64>> = vec![Vec::new(); DOFS];
+    for i in 0..rows {
+        for j in 0..cols / 2 {
+            let (a, b) = (lut.raw_cell(i, j).unwrap(), lut.raw_cell(i, cols - 1 - j).unwrap());
+            if a[0].is_nan() || b[0].is_nan() {
+                continue;
+            }
+            for k in 0..DOFS {
+                ratios[k].push(f64::from(a[k].max(b[k])) / f64::from(a[k].min(b[k])).max(1e-12));
+            }
+        }
+    }
+    let summary: Vec<String> = ratios
+        .iter_mut()
+        .map(|r| {
+            r.sort_by(f64::total_cmp);
+            format!("{:.2}/{:.2}", r[r.len() / 2], r[r.len() * 9 / 10])
+        })
+        .collect();
+    println!(
+        "committed table: {:.1} % detected; Φ-symmetry, larger/smaller of (Φ, −Φ) raw cells, median/90th \
+         percentile per DOF (x y z rx ry rz): {}",
+        100.0 * lut.detected_share(),
+        summary.join(" ")
+    );
+    print_table_summary(&lut);
+}
+
+/// An ASCII summary of the final table: per distance, σ_z and the largest rotational σ over Φ.
+fn print_table_summary(lut: &MarkerLut) {
+    let g = lut.params().grid;
+    let (rows, cols) = (g.distances as usize, g.tilts as usize);
+    let col_step = cols.div_ceil(12);
+    let row_step = rows.div_ceil(14);
+    let cols_shown: Vec<usize> = (0..cols).step_by(col_step).chain([cols - 1]).collect();
+    for (name, pick) in [("σ_z [mm]", 0usize), ("largest rotational σ [°]", 1)] {
+        print!("{name:>26} | Φ [°]:");
+        for &j in &cols_shown {
+            print!("{:>6.0}", g.tilt_rad(j).to_degrees());
+        }
+        println!();
+        for i in (0..rows).step_by(row_step).chain([rows - 1]) {
+            print!("{:>26} |", format!("d = {:.2} m", g.distance_m(i)));
+            print!("      ");
+            for &j in &cols_shown {
+                let c = lut.cell(i, j).unwrap();
+                let raw_detected = !lut.raw_cell(i, j).unwrap()[0].is_nan();
+                let v =
+                    if pick == 0 { f64::from(c[2]) * 1e3 } else { f64::from(c[3].max(c[4]).max(c[5])).to_degrees() };
+                print!("{:>5.1}{}", v, if raw_detected { ' ' } else { '*' });
+            }
+            println!();
+        }
+    }
+    println!("  (* = not detected when generated: filled by the fill rules)");
+}
+
+/// NEES accumulators per model.
+#[derive(Debug, Clone, Default)]
+struct Nees {
+    sum: [f64; DOFS],
+    n: usize,
+    rejected: usize,
+    far_sum: f64,
+    far_n: usize,
+}
+
+impl Nees {
+    fn add(&mut self, pose: &MarkerPose, truth: &Isometry3<f64>) {
+        if !pose.gate_passed {
+            self.rejected += 1;
+            return;
+        }
+        let e = vision::marker_pose::pose_error(&pose.t_cam_marker, truth);
+        let mut total = 0.0;
+        for k in 0..DOFS {
+            let v = (e[k] / pose.sigmas[k]).powi(2);
+            self.sum[k] += v;
+            total += v;
+        }
+        self.n += 1;
+        if truth.translation.vector.norm() > 4.0 {
+            self.far_sum += total / DOFS as f64;
+            self.far_n += 1;
+        }
+    }
+    fn per_dof(&self) -> [f64; DOFS] {
+        self.sum.map(|s| s / self.n.max(1) as f64)
+    }
+    fn mean(&self) -> f64 {
+        self.per_dof().iter().sum::<f64>() / DOFS as f64
+    }
+    fn far(&self) -> f64 {
+        self.far_sum / self.far_n.max(1) as f64
+    }
+}
+
+fn nees_table(title: &str, rows: &[(UncertaintyModel, Nees)]) {
+    println!("{title}");
+    println!("  model          passed  rejected  NEES x     y     z     rx    ry    rz   | mean   d > 4 m");
+    for (model, n) in rows {
+        let d = n.per_dof();
+        println!(
+            "  {:<14} {:>6}  {:>8}  {:>7.2} {:>5.2} {:>5.2} {:>5.2} {:>5.2} {:>5.2} | {:>5.2}  {:>6.2}",
+            model.name(),
+            n.n,
+            n.rejected,
+            d[0],
+            d[1],
+            d[2],
+            d[3],
+            d[4],
+            d[5],
+            n.mean(),
+            n.far()
+        );
+    }
+}
+
+#[test]
+fn nees_of_each_model_on_rendered_and_simulated_detections() {
+    let lut = committed_lut();
+    let params = lut.params().clone();
+    let camera = params.camera;
+    let k = camera.intrinsics;
+    let cells = cells_from_pattern(&TAG36H11_ID0_PATTERN);
+    let mut detector = TagDetector::new(TagDetectorConfig::default()).unwrap();
+    let mut image = vec![0u8; camera.pixels()];
+    let mut rng = Xoshiro256StarStar::seed_from_u64(99);
+
+    // 1. Our renderer, the table's geometry at random (d, Φ), image noise the table never saw.
+    let mut ours: Vec<(UncertaintyModel, Nees)> = UncertaintyModel::ALL.iter().map(|m| (*m, Nees::default())).collect();
+    let mut missed = 0;
+    for n in 0..100 {
+        let d = uniform(&mut rng, 0.5, 7.0);
+        let phi = uniform(&mut rng, -85.0, 85.0);
+        let truth = axis_pose(d, phi);
+        render_tag(&camera, params.tag_size_m, &cells, &truth, &params.render, 1_000_000 + n, &mut image).unwrap();
+        let Some(corners) = apriltag_corners(&mut detector, ImageView::new(1024, 508, &image).unwrap(), 0) else {
+            missed += 1;
+            continue;
+        };
+        for (model, acc) in &mut ours {
+            let pose = estimate_marker_pose(&corners, &k, params.tag_size_m, *model, Some(&lut)).unwrap();
+            acc.add(&pose, &truth);
+        }
+    }
+    nees_table(
+        &format!("NEES on our renders, tag centred, d ∈ [0.5, 7] m, Φ ∈ [−85°, 85°] ({missed} of 100 not detected):"),
+        &ours,
+    );
+
+    // 2. The simulator's renders of the rovers' markers from random viewpoints (tilt about any
+    //    axis, rolled, the tag anywhere near the image centre).
+    use sim::render::{Renderer, SensorModel};
+    let options = sim::scenario::ScenarioOptions {
+        robots: 2,
+        duration_s: 1.0,
+        seed: 5,
+        world_size_m: Some(40.0),
+        ..Default::default()
+    };
+    let world = sim::world::World::build(&sim::scenario::preset("moon", &options).unwrap()).unwrap();
+    let mut quads = Vec::new();
+    world.quads_at(0, Some(0), &mut quads);
+    let scene = world.scene(&quads);
+    let mut renderer = Renderer::new(sim::camera::StereoCamera::narrow(), SensorModel::default());
+    let mut right = vec![0u8; camera.pixels()];
+    let markers = world.marker_poses_world(1, 0);
+    let mut simulated: Vec<(UncertaintyModel, Nees)> =
+        UncertaintyModel::ALL.iter().map(|m| (*m, Nees::default())).collect();
+    let (mut views, mut missed) = (0, 0);
+    while views < 40 {
+        let (id, t_world_marker) = markers[(rng.next_u64() % 3) as usize];
+        let d = uniform(&mut rng, 0.8, 6.0);
+        let tilt = uniform(&mut rng, 0.0, 70f64.to_radians());
+        let azimuth = uniform(&mut rng, 0.0, std::f64::consts::TAU);
+        let dir =
+            t_world_marker.rotation * Vector3::new(tilt.sin() * azimuth.cos(), tilt.sin() * azimuth.sin(), tilt.cos());
+        if dir.z < -0.1 {
+            continue;
+        }
+        // View along `dir` (tilted about the in-plane axis ⟂ to the azimuth), rolled.
+        let eye = t_world_marker.translation.vector + dir * d;
+        let z = -dir;
+        let down = -(t_world_marker.rotation * Vector3::y());
+        let y = (down - z * down.dot(&z)).normalize();
+        let r = Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[y.cross(&z), y, z]))
+            * Rotation3::from_axis_angle(&Vector3::z_axis(), uniform(&mut rng, -0.3, 0.3));
+        let t_world_cam = Isometry3::from_parts(Translation3::from(eye), UnitQuaternion::from_rotation_matrix(&r));
+        renderer.render_stereo(&scene, &t_world_cam, 500 + views, &mut image, &mut right);
+        views += 1;
+        let truth = t_world_cam.inverse() * t_world_marker;
+        let found = detector.detect(ImageView::new(1024, 508, &image).unwrap()).iter().find(|t| t.id == id).copied();
+        let Some(detection) = found else {
+            missed += 1;
+            continue;
+        };
+        for (model, acc) in &mut simulated {
+            let pose = estimate_marker_pose(&detection.corners_px, &k, params.tag_size_m, *model, Some(&lut)).unwrap();
+            acc.add(&pose, &truth);
+        }
+    }
+    nees_table(
+        &format!(
+            "NEES on the simulator's renders (moon, robot 1's markers, d ∈ [0.8, 6] m, tilt ≤ 70° about any axis, \
+             {missed} of {views} not detected):"
+        ),
+        &simulated,
+    );
+
+    let find =
+        |rows: &[(UncertaintyModel, Nees)], m: UncertaintyModel| rows.iter().find(|r| r.0 == m).unwrap().1.clone();
+    let thesis = find(&ours, UncertaintyModel::LutAndOnline);
+    assert!(thesis.mean() <= 1.0 && thesis.per_dof().iter().all(|v| *v <= 1.5), "LUT + online: {:?}", thesis.per_dof());
+    let constant = find(&ours, UncertaintyModel::Constant);
+    assert!(constant.far() > 5.0, "constant model at long range: {}", constant.far());
+    let sim_thesis = find(&simulated, UncertaintyModel::LutAndOnline);
+    assert!(sim_thesis.mean() <= 1.0, "LUT + online on the simulator: {:?}", sim_thesis.per_dof());
+}
