@@ -822,12 +822,13 @@ impl RoverConfig {
             pose.to_isometry()
                 .map_err(|problem| ConfigError::Invalid { key: format!("markers.mounting[{k}]"), problem })?;
         }
-        let needs_lut = matches!(m.model, MarkerModelConfig::Lut | MarkerModelConfig::LutOnline);
-        check(!m.detect || !needs_lut || m.lut.is_some(), "markers.lut", || {
-            format!("required by markers.model = {:?} (marker-lut --out FILE makes one for a camera)", m.model)
-        })?;
         check(!m.detect || !m.mounting.is_empty(), "markers.mounting", || {
             "required with markers.detect = true (where the team's tags sit on a robot)".into()
+        })?;
+        let needs_lut = matches!(m.model, MarkerModelConfig::Lut | MarkerModelConfig::LutOnline);
+        check(!m.detect || !needs_lut || m.lut.is_some(), "markers.lut", || {
+            let model = if m.model == MarkerModelConfig::Lut { "lut" } else { "lut_online" };
+            format!("required by markers.model = \"{model}\" (marker-lut --out FILE makes one for a camera)")
         })?;
         Ok(())
     }

@@ -77,6 +77,12 @@ fn marker_detection_needs_the_teams_tag_mountings() {
     let on = RoverConfig::from_toml_str("[robot]\nid = 0\n[driver]\nreplay_path = \"d\"\n[markers]\ndetect = true\n");
     let err = on.unwrap_err().to_string();
     assert!(err.contains("markers.mounting") && err.contains("required"), "{err}");
+    // With the mountings, the table models need the camera's table.
+    let mounted = "[robot]\nid = 0\n[driver]\nreplay_path = \"d\"\n[markers]\ndetect = true\n[[markers.mounting]]\ntranslation_m = [0.0, 0.0, 0.8]\nrotation_wxyz = [1.0, 0.0, 0.0, 0.0]\n";
+    let err = RoverConfig::from_toml_str(mounted).unwrap_err().to_string();
+    assert!(err.contains("markers.lut") && err.contains("required"), "{err}");
+    let online = mounted.replace("detect = true", "detect = true\nmodel = \"online\"");
+    assert!(RoverConfig::from_toml_str(&online).is_ok());
     let bad = "[robot]\nid = 0\n[driver]\nreplay_path = \"d\"\n[[markers.mounting]]\ntranslation_m = [0.0, 0.0, 0.8]\nrotation_wxyz = [2.0, 0.0, 0.0, 0.0]\n";
     let err = RoverConfig::from_toml_str(bad).unwrap_err().to_string();
     assert!(err.contains("markers.mounting[0]") && err.contains("unit quaternion"), "{err}");
