@@ -39,8 +39,8 @@ use sim::world::World;
 
 use super::report::{MissionReport, ProcessReport, RobotReport, TaskTiming};
 use super::world::{
-    inter_robot_errors, marker_model_name, mission_world, robot_config as mission_robot_config, robot_id,
-    truth_at_captures, truth_in_own_frame,
+    marker_model_name, mission_world, robot_config as mission_robot_config, robot_id, truth_at_captures,
+    truth_in_own_frame,
 };
 use super::{MissionError, MissionOptions, RadioPreset, score};
 use crate::ground_end::GroundEnd;
@@ -480,26 +480,6 @@ fn robot_report(
         (None, _) => score_error = Some("the filter never initialized".to_owned()),
         _ => score_error = Some("no online estimate or no ground truth was written".to_owned()),
     }
-    let latest: Vec<(u16, u64, nalgebra::Isometry3<f64>)> = mapper
-        .get("robots_latest")
-        .and_then(Value::as_array)
-        .map(|a| {
-            a.iter()
-                .filter_map(|r| {
-                    let p: Vec<f64> = r.get("position_m")?.as_array()?.iter().filter_map(Value::as_f64).collect();
-                    let robot = u16::try_from(r.get("robot")?.as_u64()?).ok()?;
-                    let position = nalgebra::Translation3::new(*p.first()?, *p.get(1)?, *p.get(2)?);
-                    Some((
-                        robot,
-                        r.get("stamp_ns")?.as_u64()?,
-                        nalgebra::Isometry3::from_parts(position, Default::default()),
-                    ))
-                })
-                .collect()
-        })
-        .unwrap_or_default();
-    let inter_robot_error_m =
-        initialized_ns.map_or_else(Default::default, |init| inter_robot_errors(world, robot, init, &latest));
     let connected = mapper
         .get("connected")
         .and_then(Value::as_array)
@@ -525,7 +505,8 @@ fn robot_report(
         // What reached the mapper of what vision published (the bus loses nothing in between).
         markers_published: u64_at(&mapper, "markers_received"),
         marker_detections: u64_at(&mapper, "marker_detections"),
-        inter_robot_error_m,
+        // The graphs live in the robots' processes: no graph here to place the other robots.
+        inter_robot_error_m: Default::default(),
     };
 
     let restarts_of = |name: &str| {

@@ -30,7 +30,8 @@ pub struct RobotReport {
     pub markers_published: u64,
     pub marker_detections: u64,
     /// Per connected robot: distance between its latest pose in this robot's graph and its true
-    /// pose at that stamp in this robot's frame (the team's relative localization).
+    /// pose at that stamp in this robot's frame (the team's relative localization). Lockstep
+    /// runner only: the process runner's graphs live in the robots' processes.
     pub inter_robot_error_m: BTreeMap<u16, f64>,
 }
 

@@ -369,13 +369,6 @@ fn finish(
                 "graph_nodes": written.graph.nodes,
                 "graph_factors": written.graph.factors,
                 "connected": mapper.team_estimate().connected_robots(),
-                // Connected robots' latest poses in the own frame: (id, stamp, x, y, z).
-                "robots_latest": mapper.team_estimate().robots.iter().filter(|r| r.connected)
-                    .filter_map(|r| r.latest.map(|(stamp, t)| {
-                        let p = t.translation.vector;
-                        json!({"robot": r.robot, "stamp_ns": stamp, "position_m": [p.x, p.y, p.z]})
-                    }))
-                    .collect::<Vec<_>>(),
                 "markers_received": c.markers_received,
                 "marker_detections": c.marker_detections,
                 "markers_refused": c.markers_refused,
