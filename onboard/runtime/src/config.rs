@@ -330,6 +330,20 @@ impl Default for MarkersConfig {
     }
 }
 
+impl MarkerModelConfig {
+    /// The vision crate's model of this setting.
+    pub fn uncertainty_model(self) -> vision::marker_pose::UncertaintyModel {
+        use vision::marker_pose::UncertaintyModel;
+        match self {
+            MarkerModelConfig::Constant => UncertaintyModel::Constant,
+            MarkerModelConfig::Quadratic => UncertaintyModel::Quadratic,
+            MarkerModelConfig::Lut => UncertaintyModel::LutOnly,
+            MarkerModelConfig::Online => UncertaintyModel::OnlineOnly,
+            MarkerModelConfig::LutOnline => UncertaintyModel::LutAndOnline,
+        }
+    }
+}
+
 /// Which odometry results become filter updates (`crate::vio::VoUpdates`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -825,7 +839,7 @@ impl RoverConfig {
         check(!m.detect || !m.mounting.is_empty(), "markers.mounting", || {
             "required with markers.detect = true (where the team's tags sit on a robot)".into()
         })?;
-        let needs_lut = matches!(m.model, MarkerModelConfig::Lut | MarkerModelConfig::LutOnline);
+        let needs_lut = m.model.uncertainty_model().needs_lut();
         check(!m.detect || !needs_lut || m.lut.is_some(), "markers.lut", || {
             let model = if m.model == MarkerModelConfig::Lut { "lut" } else { "lut_online" };
             format!("required by markers.model = \"{model}\" (marker-lut --out FILE makes one for a camera)")

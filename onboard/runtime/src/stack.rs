@@ -7,9 +7,9 @@ use std::sync::Arc;
 use filter::FilterConfig;
 use hal::sensor::StereoCalibration;
 use vision::apriltag::TagDetectorConfig;
-use vision::marker_pose::{MarkerLut, UncertaintyModel};
+use vision::marker_pose::MarkerLut;
 
-use crate::config::{MarkerModelConfig, RoverConfig, VoUpdatesConfig};
+use crate::config::{RoverConfig, VoUpdatesConfig};
 use crate::nodes::NodeError;
 use crate::nodes::filter::{FilterNode, FilterNodeOptions};
 use crate::nodes::mapper::MapperConfig;
@@ -92,18 +92,11 @@ pub fn marker_options(config: &RoverConfig) -> Result<Option<MarkerOptions>, Str
         }
         None => None,
     };
-    let model = match m.model {
-        MarkerModelConfig::Constant => UncertaintyModel::Constant,
-        MarkerModelConfig::Quadratic => UncertaintyModel::Quadratic,
-        MarkerModelConfig::Lut => UncertaintyModel::LutOnly,
-        MarkerModelConfig::Online => UncertaintyModel::OnlineOnly,
-        MarkerModelConfig::LutOnline => UncertaintyModel::LutAndOnline,
-    };
     Ok(Some(MarkerOptions {
         detector: TagDetectorConfig::default(),
         right_image: m.right_image,
         size_m: m.size_m,
-        model,
+        model: m.model.uncertainty_model(),
         lut,
     }))
 }

@@ -179,6 +179,18 @@ fn t_world_cam_viewing(t_world_marker: &Isometry3<f64>, d: f64, phi: f64, roll: 
 /// The simulator's rendered markers (Moon and Mars presets, robot 1's three tags from three
 /// viewpoints each) against our renderer at the same poses: grey levels, noise and edge profile.
 /// This is how `RenderConfig::default()` was chosen (T23).
+/// The two-rover world whose markers the renderer and NEES checks look at.
+fn marker_world(site: &str) -> std::sync::Arc<sim::world::World> {
+    let options = sim::scenario::ScenarioOptions {
+        robots: 2,
+        duration_s: 1.0,
+        seed: 5,
+        world_size_m: Some(40.0),
+        ..Default::default()
+    };
+    sim::world::World::build(&sim::scenario::preset(site, &options).unwrap()).unwrap()
+}
+
 #[test]
 fn renderer_matches_the_simulators_markers() {
     use sim::render::{Renderer, SensorModel};
@@ -188,14 +200,7 @@ fn renderer_matches_the_simulators_markers() {
     println!("simulator markers (16 cm), robot 1 seen from a free camera:");
     println!("  site  marker  d[m]  Φ[°]  white  black  plate  noise(white)  edge 10-90% [px]");
     for site in ["moon", "mars"] {
-        let options = sim::scenario::ScenarioOptions {
-            robots: 2,
-            duration_s: 1.0,
-            seed: 5,
-            world_size_m: Some(40.0),
-            ..Default::default()
-        };
-        let world = sim::world::World::build(&sim::scenario::preset(site, &options).unwrap()).unwrap();
+        let world = marker_world(site);
         let mut quads = Vec::new();
         world.quads_at(0, Some(0), &mut quads);
         let scene = world.scene(&quads);
@@ -1157,14 +1162,7 @@ fn nees_of_each_model_on_rendered_and_simulated_detections() {
     // 2. The simulator's renders of the rovers' markers from random viewpoints (tilt about any
     //    axis, rolled, the tag anywhere near the image centre).
     use sim::render::{Renderer, SensorModel};
-    let options = sim::scenario::ScenarioOptions {
-        robots: 2,
-        duration_s: 1.0,
-        seed: 5,
-        world_size_m: Some(40.0),
-        ..Default::default()
-    };
-    let world = sim::world::World::build(&sim::scenario::preset("moon", &options).unwrap()).unwrap();
+    let world = marker_world("moon");
     let mut quads = Vec::new();
     world.quads_at(0, Some(0), &mut quads);
     let scene = world.scene(&quads);

@@ -40,8 +40,7 @@ pub fn robot_config(options: &MissionOptions, world: &World, robot: usize) -> Re
     match options.markers {
         None => config.markers.detect = false,
         Some(model) if config.markers.detect => {
-            let needs_table = matches!(model, MarkerModelConfig::Lut | MarkerModelConfig::LutOnline);
-            if needs_table && config.markers.lut.is_none() {
+            if model.uncertainty_model().needs_lut() && config.markers.lut.is_none() {
                 // A camera without a table (wide-angle, flyer): the sampling alone.
                 config.markers.model = MarkerModelConfig::Online;
             } else {
@@ -74,6 +73,12 @@ pub fn truth_at_captures(world: &World, robot: usize) -> Vec<(u64, Isometry3<f64
         .collect()
 }
 
+/// The world in the robot's own frame (see [`truth_in_own_frame`]).
+fn t_own_world(world: &Arc<World>, robot: usize, initialized_ns: u64) -> Option<Isometry3<f64>> {
+    let source = TruthConstraints::new(Arc::clone(world), TruthConstraintConfig::default());
+    Some(source.true_origin(robot, initialized_ns)?.inverse())
+}
+
 /// `truth_world` (stamp, `t_world_body`) re-expressed in the robot's own frame: its filter's first
 /// local frame, which the filter put at the body's position with the body's yaw (gravity
 /// aligned) at `initialized_ns`. `None` if the world has no state at that stamp.
@@ -83,9 +88,7 @@ pub fn truth_in_own_frame(
     initialized_ns: u64,
     truth_world: &[(u64, Isometry3<f64>)],
 ) -> Option<Vec<(u64, Isometry3<f64>)>> {
-    let source = TruthConstraints::new(Arc::clone(world), TruthConstraintConfig::default());
-    let t_world_own = source.true_origin(robot, initialized_ns)?;
-    let t_own_world = t_world_own.inverse();
+    let t_own_world = t_own_world(world, robot, initialized_ns)?;
     Some(truth_world.iter().filter(|(s, _)| *s >= initialized_ns).map(|(s, t)| (*s, t_own_world * t)).collect())
 }
 
@@ -98,9 +101,7 @@ pub fn inter_robot_errors(
     initialized_ns: u64,
     latest: &[(u16, u64, Isometry3<f64>)],
 ) -> std::collections::BTreeMap<u16, f64> {
-    let source = TruthConstraints::new(Arc::clone(world), TruthConstraintConfig::default());
-    let Some(t_world_own) = source.true_origin(robot, initialized_ns) else { return Default::default() };
-    let t_own_world = t_world_own.inverse();
+    let Some(t_own_world) = t_own_world(world, robot, initialized_ns) else { return Default::default() };
     latest
         .iter()
         .filter(|(other, _, _)| *other != robot_id(robot))
@@ -114,14 +115,5 @@ pub fn inter_robot_errors(
 
 /// The report's name of the mission's marker model (`None`: no detector).
 pub fn marker_model_name(options: &super::MissionOptions) -> Option<String> {
-    options.markers.map(|m| {
-        match m {
-            MarkerModelConfig::Constant => "constant",
-            MarkerModelConfig::Quadratic => "quadratic",
-            MarkerModelConfig::Lut => "LUT",
-            MarkerModelConfig::Online => "online",
-            MarkerModelConfig::LutOnline => "LUT + online",
-        }
-        .to_owned()
-    })
+    options.markers.map(|m| m.uncertainty_model().name().to_owned())
 }

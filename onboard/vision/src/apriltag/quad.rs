@@ -294,31 +294,30 @@ impl QuadFitter {
         }
     }
 
-    /// Line through points `i0 ..= i1` (wrapping around when `i1 < i0`), its mean squared
-    /// error, and (third) the summed squared error `points × mse`.
-    fn fit_line_err(&self, i0: usize, i1: usize) -> (Line, f64, f64) {
+    /// Summed moments of points `i0 ..= i1` (wrapping around when `i1 < i0`) from the prefix sums,
+    /// and how many points that is.
+    fn window_moments(&self, i0: usize, i1: usize) -> (Moments, usize) {
         let n = self.moments.len();
-        let (m, count) = if i0 < i1 {
+        if i0 < i1 {
             let m = if i0 > 0 { self.moments[i1].sub(self.moments[i0 - 1]) } else { self.moments[i1] };
             (m, i1 - i0 + 1)
         } else {
             let tail = if i0 > 0 { self.moments[n - 1].sub(self.moments[i0 - 1]) } else { self.moments[n - 1] };
             (tail.add(self.moments[i1]), n - i0 + i1 + 1)
-        };
+        }
+    }
+
+    /// Line through points `i0 ..= i1` (wrapping around when `i1 < i0`), its mean squared
+    /// error, and (third) the summed squared error `points × mse`.
+    fn fit_line_err(&self, i0: usize, i1: usize) -> (Line, f64, f64) {
+        let (m, count) = self.window_moments(i0, i1);
         let (line, mse) = line_from_moments(m.w, m.mx, m.my, m.mxx, m.mxy, m.myy);
         (line, mse, count as f64 * mse)
     }
 
     /// Summed squared error of the line through points `i0 ..= i1` (wrapping), without the line.
     fn window_err(&self, i0: usize, i1: usize) -> f64 {
-        let n = self.moments.len();
-        let (m, count) = if i0 < i1 {
-            let m = if i0 > 0 { self.moments[i1].sub(self.moments[i0 - 1]) } else { self.moments[i1] };
-            (m, i1 - i0 + 1)
-        } else {
-            let tail = if i0 > 0 { self.moments[n - 1].sub(self.moments[i0 - 1]) } else { self.moments[n - 1] };
-            (tail.add(self.moments[i1]), n - i0 + i1 + 1)
-        };
+        let (m, count) = self.window_moments(i0, i1);
         let inv = 1.0 / m.w;
         let (ex, ey) = (m.mx * inv, m.my * inv);
         let cxx = m.mxx * inv - ex * ex;
