@@ -7,6 +7,7 @@
 //! - [`submap`]: a submap and the policy that starts the next one (filter frame switch).
 //! - [`exchange`]: compact, lossless encoding of a finished submap for the radio.
 //! - [`global`]: composition of all submaps at their graph poses, cached.
+//! - [`pairing`]: which submap pairs the matcher tries, in which order (overlap, Δσ, score).
 //! - [`export`]: PLY point cloud, OctoMap `.bt`, top-down height/traversability PNG.
 //! - [`slam`]: the multi-robot SLAM front-end: what enters each robot's pose graph of the team.
 //! - [`wire`]: team-protocol messages to and from `slam` measurements, submap fragmentation.
@@ -26,6 +27,7 @@ pub mod export;
 pub mod global;
 pub mod integrate;
 pub mod occupancy;
+pub mod pairing;
 pub mod slam;
 pub mod submap;
 pub mod wire;
