@@ -7,7 +7,9 @@
 //! - [`submap`]: a submap and the policy that starts the next one (filter frame switch).
 //! - [`exchange`]: compact, lossless encoding of a finished submap for the radio.
 //! - [`global`]: composition of all submaps at their graph poses, cached.
+//! - [`matching`]: the submap matcher: keypoints, descriptors, Hough/RANSAC, 4-DoF ICP (§6.1.2).
 //! - [`pairing`]: which submap pairs the matcher tries, in which order (overlap, Δσ, score).
+//! - [`scheduler`]: the matcher as background work: submaps in, attempts and matches out.
 //! - [`export`]: PLY point cloud, OctoMap `.bt`, top-down height/traversability PNG.
 //! - [`slam`]: the multi-robot SLAM front-end: what enters each robot's pose graph of the team.
 //! - [`wire`]: team-protocol messages to and from `slam` measurements, submap fragmentation.
@@ -28,6 +30,7 @@ pub mod global;
 pub mod integrate;
 pub mod occupancy;
 pub mod pairing;
+pub mod scheduler;
 pub mod slam;
 pub mod submap;
 pub mod wire;

@@ -58,6 +58,8 @@ pub struct RoverConfig {
     #[serde(default)]
     pub markers: MarkersConfig,
     #[serde(default)]
+    pub matching: MatchingConfig,
+    #[serde(default)]
     pub link: LinkConfig,
     #[serde(default)]
     pub realtime: RealtimeConfig,
@@ -480,6 +482,59 @@ impl Default for MapperConfig {
     }
 }
 
+/// `[matching]`: the submap matcher, the mapper's background work (thesis §6.1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MatchingConfig {
+    /// Match submaps (own and the peers') into loop closures.
+    pub enabled: bool,
+    /// `"4d"` (x, y, z, yaw: the thesis's proposal) or `"6d"` (its baseline).
+    pub mode: MatchModeConfig,
+    /// Eq. 6.3: the view distance at which the matcher's precision is the stereo depth error
+    /// (thesis: 4 m), and the disparity error behind it (thesis: 0.5 px).
+    pub precision_view_distance_m: f64,
+    pub precision_disparity_px: f64,
+    /// Eq. 6.2: least inflated xy overlap (thesis: 2 m²).
+    pub min_overlap_m2: f64,
+    /// Eq. 6.4's α (thesis: 0.125).
+    pub overlap_weight_per_m2: f64,
+    /// `"thesis"`: Δσ = sqrt(|Σ_a − Σ_b|) (all the thesis's experiments); `"sum"`: sqrt(Σ_a + Σ_b).
+    pub delta_sigma: DeltaSigmaConfig,
+    /// On simulated time (lockstep) one attempt starts at most this often; the process runner's
+    /// matcher thread takes whatever CPU is free instead.
+    pub attempt_period_s: f64,
+}
+
+impl Default for MatchingConfig {
+    fn default() -> Self {
+        MatchingConfig {
+            enabled: true,
+            mode: MatchModeConfig::FourD,
+            precision_view_distance_m: 4.0,
+            precision_disparity_px: 0.5,
+            min_overlap_m2: 2.0,
+            overlap_weight_per_m2: 0.125,
+            delta_sigma: DeltaSigmaConfig::Thesis,
+            attempt_period_s: 1.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MatchModeConfig {
+    #[serde(rename = "4d")]
+    FourD,
+    #[serde(rename = "6d")]
+    SixD,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeltaSigmaConfig {
+    Thesis,
+    Sum,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum LinkKind {
@@ -784,6 +839,7 @@ impl RoverConfig {
         }
 
         self.validate_markers()?;
+        self.validate_matching()?;
         self.validate_link()?;
 
         for (name, p) in [
@@ -810,6 +866,23 @@ impl RoverConfig {
             "recording.directory",
             || "must not be empty when recording.enabled".into(),
         )?;
+        Ok(())
+    }
+
+    fn validate_matching(&self) -> Result<(), ConfigError> {
+        let m = &self.matching;
+        let positive = |value: f64, key: &str, unit: &str| {
+            check(value.is_finite() && value > 0.0, key, || format!("{value} {unit}: must be positive"))
+        };
+        positive(m.precision_view_distance_m, "matching.precision_view_distance_m", "m")?;
+        positive(m.precision_disparity_px, "matching.precision_disparity_px", "px")?;
+        positive(m.attempt_period_s, "matching.attempt_period_s", "s")?;
+        check(m.min_overlap_m2.is_finite() && m.min_overlap_m2 >= 0.0, "matching.min_overlap_m2", || {
+            format!("{} m²: must not be negative", m.min_overlap_m2)
+        })?;
+        check(m.overlap_weight_per_m2.is_finite() && m.overlap_weight_per_m2 >= 0.0, "matching.overlap_weight_per_m2", || {
+            format!("{}: must not be negative", m.overlap_weight_per_m2)
+        })?;
         Ok(())
     }
 

@@ -6,10 +6,13 @@ use std::sync::Arc;
 
 use filter::FilterConfig;
 use hal::sensor::StereoCalibration;
+use mapper::matching::{MatchMode, MatcherParams};
+use mapper::pairing::{DeltaSigma, PairingParams, matcher_precision_m};
+use mapper::scheduler::{Executor, SchedulerConfig};
 use vision::apriltag::TagDetectorConfig;
 use vision::marker_pose::MarkerLut;
 
-use crate::config::{RoverConfig, VoUpdatesConfig};
+use crate::config::{DeltaSigmaConfig, MatchModeConfig, RoverConfig, VoUpdatesConfig};
 use crate::nodes::NodeError;
 use crate::nodes::filter::{FilterNode, FilterNodeOptions};
 use crate::nodes::mapper::MapperConfig;
@@ -128,7 +131,40 @@ pub fn mapper_config(config: &RoverConfig, rectified: StereoCalibration) -> Mapp
     mapper.markers = team_markers(config);
     mapper.marker_min_interval_ns = (config.markers.min_interval_s * 1e9) as u64;
     mapper.marker_max_distance_m = config.markers.max_distance_m;
+    mapper.matching = matching_config(config, &rectified);
     mapper
+}
+
+/// The matcher's settings of `[matching]` (`None` when it is off), run inline: the process
+/// runner's mapper moves it to a background thread. Eq. 6.3's precision comes from this robot's
+/// rectified head (the thesis's LRU: f = 1080 px, b = 0.09 m).
+pub fn matching_config(config: &RoverConfig, rectified: &StereoCalibration) -> Option<SchedulerConfig> {
+    let m = &config.matching;
+    if !m.enabled {
+        return None;
+    }
+    let mut matcher = MatcherParams::default();
+    matcher.mode = match m.mode {
+        MatchModeConfig::FourD => MatchMode::FourDof,
+        MatchModeConfig::SixD => MatchMode::SixDof,
+    };
+    let pairing = PairingParams {
+        min_overlap_m2: m.min_overlap_m2,
+        overlap_weight_per_m2: m.overlap_weight_per_m2,
+        precision_m: matcher_precision_m(
+            rectified.left.intrinsics.fx_px,
+            rectified.baseline_m,
+            m.precision_disparity_px,
+            m.precision_view_distance_m,
+        ),
+        delta_sigma: match m.delta_sigma {
+            DeltaSigmaConfig::Thesis => DeltaSigma::ThesisDifference,
+            DeltaSigmaConfig::Sum => DeltaSigma::Sum,
+        },
+    };
+    let mut scheduler = SchedulerConfig::new(matcher, pairing, Executor::Inline);
+    scheduler.attempt_period_ns = (m.attempt_period_s * 1e9) as u64;
+    Some(scheduler)
 }
 
 /// The team's tag mountings of `[markers]` (validated with the configuration); `None` without

@@ -7,7 +7,7 @@
 use std::ffi::OsString;
 use std::process::ExitCode;
 
-use onboard::config::MarkerModelConfig;
+use onboard::config::{MarkerModelConfig, MatchModeConfig};
 
 use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
 
@@ -29,6 +29,10 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
   --markers M            the robots' AprilTag detector and its uncertainty model: lut_online
                          (the thesis's, default), lut, online, quadratic, constant, or off; a
                          camera without a table (wide-angle, flyer) uses online for the lut models
+  --matching M           the robots' submap matcher: 4d (the thesis's, default), 6d (its
+                         baseline) or off (the default with --truth-loop-closures)
+  --compare-match-modes  after a lockstep mission, match every attempted pair again in the
+                         other mode (4d <-> 6d) with the same prior; both are scored in the report
   --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
                          ground truth with the thesis's noise models: a TEST-ONLY source for
                          comparisons, next to the robots' own detections; reports say so;
@@ -66,6 +70,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     let mut parser = lexopt::Parser::from_args(args);
     let mut options = MissionOptions::default();
     let mut json = false;
+    let mut matching: Option<Option<MatchModeConfig>> = None;
     let text = |parser: &mut lexopt::Parser, name: &str| -> Result<String, String> {
         let value = parser.value().map_err(|e| e.to_string())?;
         value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
@@ -116,6 +121,15 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                 };
             }
             Long("truth-loop-closures") => options.truth_loop_closures = true,
+            Long("compare-match-modes") => options.compare_match_modes = true,
+            Long("matching") => {
+                matching = Some(match text(&mut parser, "--matching")?.as_str() {
+                    "off" => None,
+                    "4d" => Some(MatchModeConfig::FourD),
+                    "6d" => Some(MatchModeConfig::SixD),
+                    other => return Err(format!("--matching: expected 4d, 6d or off, got {other:?}")),
+                });
+            }
             Long("markers") => {
                 options.markers = match text(&mut parser, "--markers")?.as_str() {
                     "off" => None,
@@ -164,6 +178,12 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             other => return Err(other.unexpected().to_string()),
         }
     }
+    // The truth closures are the matcher's upper bound: alone unless a matcher is asked for.
+    options.matching = match matching {
+        Some(choice) => choice,
+        None if options.truth_loop_closures => None,
+        None => options.matching,
+    };
     if !matches!(options.scenario.as_str(), "moon" | "mars") {
         return Err(format!("--scenario: expected moon or mars, got {:?}", options.scenario));
     }

@@ -237,6 +237,23 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
                 .collect()
         })
         .collect();
+    // Where each finished submap starts (submap 0: the filter's initialization), for the truth
+    // of the matches.
+    let mut submap_starts_ns: BTreeMap<mapper::slam::SubmapId, u64> = BTreeMap::new();
+    for r in &robots {
+        let init_ns = r.stack.filter.summary().initialized_ns;
+        for s in r.stack.mapper.own_submaps() {
+            let start_ns = if s.index == 0 { init_ns } else { Some(s.start_stamp_ns) };
+            if let Some(start_ns) = start_ns {
+                submap_starts_ns.insert(mapper::slam::SubmapId::new(s.robot_id, s.index), start_ns);
+            }
+        }
+    }
+    let truth_origins = sim::truth_constraints::TruthConstraints::new(Arc::clone(&world), Default::default());
+    let true_origin = |id: mapper::slam::SubmapId| {
+        let robot = (1..=options.robots).find(|&r| robot_id(r - 1) == id.robot)? - 1;
+        truth_origins.true_origin(robot, *submap_starts_ns.get(&id)?)
+    };
     for (r, placed) in robots.iter_mut().zip(&placed) {
         let robot = r.robot;
         let stack = &mut r.stack;
@@ -266,6 +283,19 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             markers_published: stack.vision.summary().markers.published,
             marker_detections: stack.mapper.counters().marker_detections,
             inter_robot_error_m,
+            matching: stack.mapper.matcher().map(|m| {
+                let mut report = super::matching::MatchingReport::new(m, &true_origin);
+                if options.compare_match_modes {
+                    let mut params = m.config().matcher.clone();
+                    let (mode, name) = match params.mode {
+                        mapper::matching::MatchMode::FourDof => (mapper::matching::MatchMode::SixDof, "6d"),
+                        mapper::matching::MatchMode::SixDof => (mapper::matching::MatchMode::FourDof, "4d"),
+                    };
+                    params.mode = mode;
+                    report.other_mode = Some(super::matching::OtherMode::rematch(m, &params, name, &true_origin));
+                }
+                report
+            }),
         });
         for (name, seconds) in NODE_NAMES.iter().zip(&stack.times.seconds) {
             processes.push(ProcessReport::lockstep(robot_id(robot), name, *seconds));

@@ -4,6 +4,7 @@
 //! (g2o), the map (PLY, OctoMap `.bt`), and `report.json` + `report.md`.
 
 pub mod lockstep;
+pub mod matching;
 pub mod process;
 pub mod report;
 pub mod score;
@@ -64,6 +65,11 @@ pub struct MissionOptions {
     /// The robots' marker detector and its uncertainty model; `None`: no detector (the
     /// simulator's cameras have tables for the `lut` models at every downscale).
     pub markers: Option<onboard::config::MarkerModelConfig>,
+    /// The robots' submap matcher and its mode (`None`: off).
+    pub matching: Option<onboard::config::MatchModeConfig>,
+    /// Lockstep runner: after the mission, every pair the matchers attempted is matched again in
+    /// the other mode (4D ↔ 6D) with the same prior, and scored (thesis §8.1.2).
+    pub compare_match_modes: bool,
     /// The ground station's UDP address; `None`: an in-process stand-in acknowledges the
     /// robots' ground links. Either way the ground traffic is recorded in `out/ground_feed.log`.
     pub feed: Option<SocketAddr>,
@@ -93,6 +99,8 @@ impl Default for MissionOptions {
             radio: RadioPreset::SerialRadio,
             truth_loop_closures: false,
             markers: Some(onboard::config::MarkerModelConfig::LutOnline),
+            matching: Some(onboard::config::MatchModeConfig::FourD),
+            compare_match_modes: false,
             feed: None,
             ground_key: None,
             ground_link: crate::relay::GroundLinkEmulation::default(),

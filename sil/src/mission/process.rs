@@ -507,6 +507,20 @@ fn robot_report(
         marker_detections: u64_at(&mapper, "marker_detections"),
         // The graphs live in the robots' processes: no graph here to place the other robots.
         inter_robot_error_m: Default::default(),
+        // Counts only: the matches' truth needs the submaps' stamps, which stay in the processes.
+        matching: mapper.get("matching").filter(|m| !m.is_null()).map(|m| super::matching::MatchingReport {
+            submaps_checked: u64_at(m, "submaps_checked"),
+            submaps_unsuitable: u64_at(m, "submaps_unsuitable"),
+            attempts: u64_at(m, "attempts"),
+            accepted: u64_at(m, "accepted"),
+            rejected: m
+                .get("rejected")
+                .and_then(Value::as_object)
+                .map(|r| r.iter().map(|(k, v)| (k.clone(), v.as_u64().unwrap_or(0))).collect())
+                .unwrap_or_default(),
+            queued: u64_at(m, "queued") as usize,
+            ..Default::default()
+        }),
     };
 
     let restarts_of = |name: &str| {

@@ -33,6 +33,8 @@ pub struct RobotReport {
     /// pose at that stamp in this robot's frame (the team's relative localization). Lockstep
     /// runner only: the process runner's graphs live in the robots' processes.
     pub inter_robot_error_m: BTreeMap<u16, f64>,
+    /// The submap matcher's attempts and matches (`None`: it did not run).
+    pub matching: Option<super::matching::MatchingReport>,
 }
 
 /// The fixed-rate task of one process, as its task file reports it (process runner only: the
@@ -129,6 +131,14 @@ impl MissionReport {
                 "robot detections (AprilTag tag36h11, on-board, {model} model): {tags} tags seen, {detections} in the graphs"
             ));
         }
+        let matchers: Vec<&super::matching::MatchingReport> = self.robots.iter().filter_map(|r| r.matching.as_ref()).collect();
+        if !matchers.is_empty() {
+            let attempts: u64 = matchers.iter().map(|m| m.attempts).sum();
+            let accepted: u64 = matchers.iter().map(|m| m.accepted).sum();
+            sources.push(format!(
+                "submap matches (on-board 4D matcher): {attempts} attempts, {accepted} accepted"
+            ));
+        }
         if self.truth_loop_closures {
             sources.push("simulator ground truth (test-only: sim::truth_constraints)".to_owned());
         }
@@ -138,8 +148,8 @@ impl MissionReport {
     fn loop_closure_line(&self) -> String {
         let sources = self.loop_closure_sources();
         if sources.is_empty() {
-            "loop closures: none ran (robot detector off, no submap matcher in the firmware yet): each \
-             robot's graph holds only its own odometry"
+            "loop closures: none ran (robot detector and submap matcher off): each robot's graph holds \
+             only its own odometry"
                 .to_owned()
         } else {
             format!("loop closures: {}", sources.join("; "))
@@ -184,6 +194,7 @@ impl MissionReport {
                     "markers_published": r.markers_published,
                     "marker_detections": r.marker_detections,
                     "inter_robot_error_m": r.inter_robot_error_m,
+                    "matching": r.matching.as_ref().map(super::matching::MatchingReport::to_json),
                 })
             })
             .collect();
@@ -293,6 +304,11 @@ impl MissionReport {
                 );
             }
         }
+        for r in &self.robots {
+            if let Some(m) = &r.matching {
+                let _ = writeln!(out, "robot {} matcher: {}", r.robot, m.summary_line());
+            }
+        }
         let cpu: f64 = self.processes.iter().map(|p| p.cpu_s).sum();
         let overruns = self.deadline_overruns().map_or("not measured (lockstep)".to_owned(), |n| n.to_string());
         let _ = writeln!(
@@ -378,6 +394,14 @@ impl MissionReport {
                     r.marker_detections,
                     Self::inter_robot_text(r)
                 );
+            }
+        }
+        if self.robots.iter().any(|r| r.matching.is_some()) {
+            out.push_str("\n## Submap matcher (thesis §6.1)\n\n");
+            for r in &self.robots {
+                if let Some(m) = &r.matching {
+                    let _ = writeln!(out, "- robot {}: {}", r.robot, m.summary_line());
+                }
             }
         }
         out.push_str("\n## Bytes sent per message class\n\n| robot | class | bytes |\n|---|---|---|\n");

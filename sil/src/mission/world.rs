@@ -49,6 +49,10 @@ pub fn robot_config(options: &MissionOptions, world: &World, robot: usize) -> Re
         }
         Some(_) => {}
     }
+    match options.matching {
+        None => config.matching.enabled = false,
+        Some(mode) => config.matching.mode = mode,
+    }
     if let Some(distance_m) = options.submap_max_distance_m {
         config.mapper.submap_max_distance_m = distance_m;
     }

@@ -30,6 +30,7 @@ use std::sync::Arc;
 use hal::sensor::StereoCalibration;
 use mapper::Submap;
 use mapper::global::{GlobalMap, GlobalMapConfig};
+use mapper::scheduler::{MatchScheduler, SchedulerConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
 use mapper::slam::{
     self, FilterPose, FramePose, GraphSize, InsertOutcome, Measurement, NodeId, PoseBuffer, SameStamp, SubmapPair,
@@ -89,6 +90,8 @@ pub struct MapperConfig {
     /// not used.
     pub marker_min_interval_ns: u64,
     pub marker_max_distance_m: f64,
+    /// The submap matcher (`None`: no map-matching loop closures).
+    pub matching: Option<SchedulerConfig>,
 }
 
 impl MapperConfig {
@@ -114,6 +117,7 @@ impl MapperConfig {
             markers: None,
             marker_min_interval_ns: 10_000_000_000,
             marker_max_distance_m: 7.0,
+            matching: None,
         }
     }
 }
@@ -239,6 +243,8 @@ pub struct MapperNode {
     /// arrived yet (without an IMU the odometry's state follows the image).
     parked: Option<ParkedImage>,
     counters: MapperCounters,
+    /// The submap matcher (`config.matching`).
+    matcher: Option<MatchScheduler>,
 }
 
 /// The capture of the image waiting in the mapper's depth buffers.
@@ -302,6 +308,7 @@ impl MapperNode {
             labels: PixelLabels::default(),
             parked: None,
             counters: MapperCounters::default(),
+            matcher: config.matching.clone().map(|c| MatchScheduler::new(own, c)),
             config,
         };
         if let Some(dir) = node.config.state_dir.clone() {
@@ -321,6 +328,7 @@ impl MapperNode {
                 Ok(submap) if submap.robot_id == self.own && submap.index == index => {
                     let submap = Arc::new(submap);
                     self.unplaced.insert(slam::SubmapId::new(self.own, index), Arc::clone(&submap));
+                    self.offer_to_matcher(&submap);
                     self.own_finished.insert(index, submap);
                     self.counters.submaps_restored += 1;
                 }
@@ -401,6 +409,11 @@ impl MapperNode {
 
     pub fn graph(&self) -> &TeamGraph {
         &self.graph
+    }
+
+    /// The submap matcher's state, log and counters (`None` when matching is off).
+    pub fn matcher(&self) -> Option<&MatchScheduler> {
+        self.matcher.as_ref()
     }
 
     pub fn global_map(&self) -> &GlobalMap {
@@ -891,6 +904,7 @@ impl MapperNode {
         self.journal(&Record::OwnSwitch { stamp_ns: m.stamp_ns, from_index: m.old_frame_id, t_old_new, covariance });
         self.insert(&Measurement::SubmapSwitch(self.graph_switch(&switch)));
         self.unplaced.insert(slam::SubmapId::new(self.own, finished.index), Arc::clone(&finished));
+        self.offer_to_matcher(&finished);
         self.outgoing.push_back(Outgoing { index: finished.index, payload: Arc::new(payload), next_chunk: 0 });
         self.own_finished.insert(finished.index, finished);
         Ok(())
@@ -1035,12 +1049,31 @@ impl MapperNode {
         Ok(())
     }
 
+    /// A finished submap (own or received) to the matcher, if it runs.
+    fn offer_to_matcher(&mut self, submap: &Submap) {
+        if let Some(matcher) = &mut self.matcher {
+            matcher.add_submap(slam::SubmapId::new(submap.robot_id, submap.index), Arc::new(submap.cloud.clone()));
+        }
+    }
+
+    /// The matcher's finished attempt and match (if any) into the graph and to the team.
+    fn run_matcher(&mut self, now_ns: u64, out: &mut dyn Outbox) -> Result<(), NodeError> {
+        let Some(matcher) = &mut self.matcher else {
+            return Ok(());
+        };
+        for m in matcher.poll(now_ns, &mut self.graph) {
+            self.insert_measurement(&m, out)?;
+        }
+        Ok(())
+    }
+
     fn accept_submap(&mut self, header: &SubmapHeader, payload: &[u8]) {
         let id = wire::slam_submap(header.submap);
         match mapper::exchange::decode_submap(payload) {
             Ok(submap) if submap.robot_id == id.robot && submap.index == id.index => {
                 self.counters.submaps_received += 1;
                 let submap = Arc::new(submap);
+                self.offer_to_matcher(&submap);
                 match self.graph.node_pose(NodeId::Submap(id)) {
                     Some(pose) => self.global.insert(submap, pose),
                     None => {
@@ -1081,6 +1114,7 @@ impl Node for MapperNode {
             self.drop_parked();
         }
         self.update_graph();
+        self.run_matcher(now_ns, out)?;
         self.send_chunks(now_ns, out)
     }
 }

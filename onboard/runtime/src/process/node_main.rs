@@ -159,6 +159,11 @@ fn build(
                 stack::rectified_calibration(setup).map_err(|e| ProcessError::Setup(format!("rectification: {e}")))?;
             let mut mapper_config = stack::mapper_config(config, rectified);
             mapper_config.state_dir = Some(dir.join("state"));
+            // On the wall clock the matcher takes the CPU the real-time tasks leave.
+            if let Some(matching) = &mut mapper_config.matching {
+                matching.executor =
+                    mapper::scheduler::Executor::Background { setup: crate::task::rt::idle_background_thread };
+            }
             Hosted::Mapper(Box::new(
                 MapperNode::new(mapper_config).map_err(|e| ProcessError::Setup(format!("mapper: {e}")))?,
             ))
@@ -382,6 +387,17 @@ fn finish(
                 "submaps_restored": c.submaps_restored,
                 "own_submaps": mapper.own_submaps().map(|s| s.index).collect::<Vec<_>>(),
                 "current_submap": mapper.current_submap().index,
+                "matching": mapper.matcher().map(|m| {
+                    let s = m.stats();
+                    json!({
+                        "submaps_checked": s.submaps_added,
+                        "submaps_unsuitable": s.submaps_unsuitable,
+                        "attempts": s.attempts,
+                        "accepted": s.accepted,
+                        "rejected": s.rejected,
+                        "queued": s.queued,
+                    })
+                }),
             });
             write_json(&dir.join("mapper_status.json"), &status)?;
             Ok(status)

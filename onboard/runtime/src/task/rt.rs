@@ -107,3 +107,21 @@ fn explain(errno: nix::errno::Errno) -> String {
         other => format!("{other}"),
     }
 }
+
+/// For a background thread of a real-time process (the mapper's matcher): `SCHED_IDLE`, so it
+/// runs only when no other thread of the machine wants the CPU, and every online CPU, undoing
+/// the task thread's pinning it inherited. What is not permitted is skipped with one log line.
+pub fn idle_background_thread() {
+    let idle = ThreadSchedulePolicy::Normal(thread_priority::NormalThreadSchedulePolicy::Idle);
+    if let Err(e) = set_thread_priority_and_policy(thread_native_id(), ThreadPriority::Min, idle) {
+        eprintln!("realtime: SCHED_IDLE for a background thread not applied: {e}; it keeps the task's class");
+    }
+    // Every bit: the kernel keeps the CPUs that exist (the inherited pinning hides how many).
+    let mut all = CpuSet::new();
+    for cpu in 0..CpuSet::count() {
+        let _ = all.set(cpu);
+    }
+    if let Err(errno) = sched_setaffinity(Pid::from_raw(0), &all) {
+        eprintln!("realtime: CPU affinity of a background thread not widened: {}", explain(errno));
+    }
+}

@@ -1,0 +1,267 @@
+//! The submap matcher's part of the mission report: what each robot's matcher tried, what it
+//! accepted and rejected (by which check), and, on the lockstep runner where the simulator's
+//! truth is at hand, each accepted match's error against the true relative pose of the two
+//! submap origins (thesis Fig. 8.8: 3D translation and yaw error per match).
+//!
+//! A match is counted a **false positive** when its translation error exceeds
+//! [`FALSE_POSITIVE_TRANSLATION_M`] or its yaw error [`FALSE_POSITIVE_YAW_DEG`]: the thesis's
+//! accepted matches lie mostly within 0.1–0.3 m, so twice the top of that range is wrong, not
+//! imprecise. NEES is the 6-DoF normalized error `δᵀ Σ⁻¹ δ` with `δ = Log(T_true⁻¹ · T_match)`
+//! in the graph's convention (perturbation on the right, `[translation, rotation]`): consistent
+//! covariances give a mean of 6.
+
+use std::collections::BTreeMap;
+
+use mapper::scheduler::{AttemptRecord, MatchScheduler};
+use mapper::slam::SubmapId;
+use nalgebra::Isometry3;
+use serde_json::{Value, json};
+
+pub const FALSE_POSITIVE_TRANSLATION_M: f64 = 0.6;
+pub const FALSE_POSITIVE_YAW_DEG: f64 = 5.0;
+
+/// One accepted match scored against the truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchScore {
+    pub a: SubmapId,
+    pub b: SubmapId,
+    pub translation_error_m: f64,
+    pub yaw_error_deg: f64,
+    pub nees: f64,
+    pub rmse_m: f64,
+    /// The prior's error: how far the graph's estimate was before the match (m).
+    pub prior_translation_error_m: f64,
+}
+
+impl MatchScore {
+    pub fn inter_robot(&self) -> bool {
+        self.a.robot != self.b.robot
+    }
+
+    pub fn false_positive(&self) -> bool {
+        self.translation_error_m > FALSE_POSITIVE_TRANSLATION_M || self.yaw_error_deg > FALSE_POSITIVE_YAW_DEG
+    }
+}
+
+/// One robot's matcher over the mission.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MatchingReport {
+    pub submaps_checked: u64,
+    pub submaps_unsuitable: u64,
+    pub attempts: u64,
+    pub accepted: u64,
+    pub rejected: BTreeMap<String, u64>,
+    /// Pairs still queued at the end (thesis T16: the queue at the end bounds the count).
+    pub queued: usize,
+    /// Mean time per attempt by stage (s): features, correspondences, Hough + RANSAC, ICP, total.
+    pub mean_stage_s: [f64; 5],
+    /// Accepted matches against the truth (lockstep runner only).
+    pub scores: Vec<MatchScore>,
+    /// The same attempted pairs matched again in the other mode (`compare_match_modes`).
+    pub other_mode: Option<OtherMode>,
+}
+
+/// The attempted pairs re-matched in the other mode with the same priors.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct OtherMode {
+    pub mode: String,
+    pub attempts: u64,
+    pub accepted: u64,
+    pub rejected: BTreeMap<String, u64>,
+    pub scores: Vec<MatchScore>,
+}
+
+impl OtherMode {
+    /// Re-matches every attempt in `scheduler`'s log with `params` (the other mode).
+    pub fn rematch(
+        scheduler: &MatchScheduler,
+        params: &mapper::matching::MatcherParams,
+        mode: &str,
+        true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>,
+    ) -> OtherMode {
+        let mut other = OtherMode { mode: mode.to_owned(), ..OtherMode::default() };
+        for record in scheduler.log() {
+            let (Some(target), Some(source)) =
+                (scheduler.prepared(record.pair.first()), scheduler.prepared(record.pair.second()))
+            else {
+                continue;
+            };
+            let prior = mapper::matching::RelativePrior {
+                t_target_source: record.prior_t_a_b,
+                delta_sigma_m: record.delta_sigma_m,
+            };
+            let report = mapper::matching::match_clouds(source, target, Some(&prior), params);
+            other.attempts += 1;
+            let result = match &report.outcome {
+                Ok(found) => {
+                    other.accepted += 1;
+                    Ok(mapper::slam::SubmapMatch {
+                        a: record.pair.first(),
+                        b: record.pair.second(),
+                        t_a_b: found.t_target_source,
+                        covariance: found.covariance,
+                    })
+                }
+                Err(rejection) => {
+                    *other.rejected.entry(rejection.name().to_owned()).or_default() += 1;
+                    Err(rejection.name())
+                }
+            };
+            let rematched = AttemptRecord {
+                result,
+                rmse_m: report.outcome.as_ref().ok().map(|f| f.rmse_m),
+                correspondences: report.correspondences,
+                hypotheses: report.hypotheses,
+                times: report.times,
+                ..record.clone()
+            };
+            other.scores.extend(score(&rematched, true_origin));
+        }
+        other
+    }
+
+    fn to_json(&self) -> Value {
+        json!({
+            "mode": self.mode,
+            "attempts": self.attempts,
+            "accepted": self.accepted,
+            "rejected": self.rejected,
+            "false_positives": self.scores.iter().filter(|s| s.false_positive()).count(),
+            "matches": self.scores.iter().map(score_json).collect::<Vec<_>>(),
+        })
+    }
+}
+
+fn score_json(s: &MatchScore) -> Value {
+    json!({
+        "a": [s.a.robot, s.a.index],
+        "b": [s.b.robot, s.b.index],
+        "inter_robot": s.inter_robot(),
+        "translation_error_m": s.translation_error_m,
+        "yaw_error_deg": s.yaw_error_deg,
+        "nees": s.nees,
+        "rmse_m": s.rmse_m,
+        "prior_translation_error_m": s.prior_translation_error_m,
+        "false_positive": s.false_positive(),
+    })
+}
+
+impl MatchingReport {
+    /// The report of `scheduler`; `true_origin` gives a submap origin's true pose (any common
+    /// frame), `None` where unknown (the process runner: no scores).
+    pub fn new(scheduler: &MatchScheduler, true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>) -> Self {
+        let stats = scheduler.stats();
+        let log = scheduler.log();
+        let mut mean_stage_s = [0.0; 5];
+        for record in log {
+            let t = &record.times;
+            for (sum, v) in mean_stage_s.iter_mut().zip([t.features_s, t.correspondences_s, t.hough_ransac_s, t.icp_s, t.total_s]) {
+                *sum += v;
+            }
+        }
+        if !log.is_empty() {
+            mean_stage_s.iter_mut().for_each(|v| *v /= log.len() as f64);
+        }
+        MatchingReport {
+            submaps_checked: stats.submaps_added,
+            submaps_unsuitable: stats.submaps_unsuitable,
+            attempts: stats.attempts,
+            accepted: stats.accepted,
+            rejected: stats.rejected.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
+            queued: stats.queued,
+            mean_stage_s,
+            scores: log.iter().filter_map(|r| score(r, true_origin)).collect(),
+            other_mode: None,
+        }
+    }
+
+    pub fn false_positives(&self) -> usize {
+        self.scores.iter().filter(|s| s.false_positive()).count()
+    }
+
+    pub fn to_json(&self) -> Value {
+        let scores: Vec<Value> = self.scores.iter().map(score_json).collect();
+        json!({
+            "submaps_checked": self.submaps_checked,
+            "submaps_unsuitable": self.submaps_unsuitable,
+            "attempts": self.attempts,
+            "accepted": self.accepted,
+            "rejected": self.rejected,
+            "queued": self.queued,
+            "mean_stage_s": {
+                "features": self.mean_stage_s[0],
+                "correspondences": self.mean_stage_s[1],
+                "hough_ransac": self.mean_stage_s[2],
+                "icp": self.mean_stage_s[3],
+                "total": self.mean_stage_s[4],
+            },
+            "false_positives": self.false_positives(),
+            "matches": scores,
+            "other_mode": self.other_mode.as_ref().map(OtherMode::to_json),
+        })
+    }
+
+    /// One line: attempts, accepted, rejections by check, errors of the accepted.
+    pub fn summary_line(&self) -> String {
+        let rejected: Vec<String> = self.rejected.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let mut line = format!(
+            "{} attempts, {} accepted, rejected: {}; {} of {} submaps unsuitable; {} queued; {:.2} s per attempt",
+            self.attempts,
+            self.accepted,
+            if rejected.is_empty() { "none".to_owned() } else { rejected.join(", ") },
+            self.submaps_unsuitable,
+            self.submaps_checked,
+            self.queued,
+            self.mean_stage_s[4]
+        );
+        if !self.scores.is_empty() {
+            let mut t: Vec<f64> = self.scores.iter().map(|s| s.translation_error_m).collect();
+            t.sort_by(f64::total_cmp);
+            let mut yaw: Vec<f64> = self.scores.iter().map(|s| s.yaw_error_deg).collect();
+            yaw.sort_by(f64::total_cmp);
+            let nees = self.scores.iter().map(|s| s.nees).sum::<f64>() / self.scores.len() as f64;
+            line.push_str(&format!(
+                "; errors median {:.3} m / {:.2}°, max {:.3} m / {:.2}°, mean NEES {:.1}, {} false positive(s)",
+                t[t.len() / 2],
+                yaw[yaw.len() / 2],
+                t[t.len() - 1],
+                yaw[yaw.len() - 1],
+                nees,
+                self.false_positives()
+            ));
+        }
+        if let Some(other) = &self.other_mode {
+            line.push_str(&format!(
+                "; the same pairs in {}: {} accepted, {} false positive(s)",
+                other.mode,
+                other.accepted,
+                other.scores.iter().filter(|s| s.false_positive()).count()
+            ));
+        }
+        line
+    }
+}
+
+fn score(record: &AttemptRecord, true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>) -> Option<MatchScore> {
+    let m = record.result.as_ref().ok()?;
+    let t_a_b_true = true_origin(m.a)?.inverse() * true_origin(m.b)?;
+    let error = t_a_b_true.inverse() * m.t_a_b;
+    let delta = posegraph::se3::log(&error);
+    let nees = m.covariance.try_inverse().map_or(f64::INFINITY, |info| (delta.transpose() * info * delta)[(0, 0)]);
+    let prior_error = t_a_b_true.inverse() * record.prior_t_a_b;
+    Some(MatchScore {
+        a: m.a,
+        b: m.b,
+        translation_error_m: error.translation.vector.norm(),
+        yaw_error_deg: yaw_rad(&error).abs().to_degrees(),
+        nees,
+        rmse_m: record.rmse_m.unwrap_or(f64::NAN),
+        prior_translation_error_m: prior_error.translation.vector.norm(),
+    })
+}
+
+/// The z-y-x Euler yaw of a pose's rotation.
+fn yaw_rad(t: &Isometry3<f64>) -> f64 {
+    let r = t.rotation.to_rotation_matrix().into_inner();
+    r[(1, 0)].atan2(r[(0, 0)])
+}
