@@ -1,0 +1,1 @@
+//! Unit tests of the internal stages that need private access.
