@@ -2,6 +2,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod common {
+    pub use mapper::cloud::{CLOUD_LEAF_M, MapPoint, VoxelCloud};
     pub mod terrain;
 }
 
@@ -52,6 +53,7 @@ fn four_dof_recovers_the_terrain_transform() {
     let report = run(&pair, &params, None);
     let found = report.outcome.expect("a match");
     let (dt, dr) = errors(&found.t_target_source, &pair.t_target_source);
+    eprintln!("error vector {:?}", (pair.t_target_source.inverse() * found.t_target_source).translation.vector);
     assert!(dt < 0.03 && dr < 0.5, "error {dt:.3} m, {dr:.2}°");
     let (roll, pitch, _) = found.t_target_source.rotation.euler_angles();
     assert!(roll.abs() < 1e-12 && pitch.abs() < 1e-12, "4D keeps roll and pitch at zero");

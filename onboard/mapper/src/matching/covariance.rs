@@ -5,7 +5,8 @@ use std::collections::HashSet;
 
 use nalgebra::{Isometry3, Matrix6, Point3};
 
-use super::icp::{active_indices, normal_equations};
+use super::icp::{Problem, active_indices};
+use super::params::IcpMetric;
 use super::params::{MatchMode, MatcherParams};
 use crate::cloud::VoxelBuildHasher;
 
@@ -34,20 +35,24 @@ pub(crate) fn effective_samples(source: &[Point3<f32>], pairs: &[(usize, usize)]
 /// degree of freedom, e.g. a single plane).
 pub(crate) fn match_covariance(
     t_target_source: &Isometry3<f64>,
-    source: &[Point3<f32>],
-    target: &[Point3<f32>],
+    problem: &Problem<'_>,
     pairs: &[(usize, usize)],
     params: &MatcherParams,
 ) -> Option<Matrix6<f64>> {
     let idx = active_indices(params.mode);
     let p = idx.len();
     let n = pairs.len();
-    if n * 3 <= p {
+    // Scalar residuals per pair.
+    let per_pair = match problem.metric {
+        IcpMetric::PointToPoint => 3,
+        IcpMetric::PointToPlane => 1,
+    };
+    if n * per_pair <= p {
         return None;
     }
-    let (h, _, cost) = normal_equations(t_target_source, source, target, pairs);
-    let sigma2 = cost / (3 * n - p) as f64;
-    let correlation = n as f64 / effective_samples(source, pairs, params.covariance_correlation_m) as f64;
+    let (h, _, cost) = problem.normal_equations(t_target_source, pairs);
+    let sigma2 = cost / (per_pair * n - p) as f64;
+    let correlation = n as f64 / effective_samples(problem.source, pairs, params.covariance_correlation_m) as f64;
     let mut h_active = nalgebra::DMatrix::<f64>::zeros(p, p);
     for (r, &i) in idx.iter().enumerate() {
         for (c, &j) in idx.iter().enumerate() {

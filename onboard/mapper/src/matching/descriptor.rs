@@ -21,7 +21,6 @@
 use nalgebra::{DMatrix, Matrix3, Point3, Vector3};
 
 use super::lrf::local_frame;
-use super::normals::normal_at;
 use super::params::MatcherParams;
 use super::spatial::PointIndex;
 use crate::cloud::VoxelCloud;
@@ -76,33 +75,24 @@ fn two_bins(x: f32, n: usize, wrap: bool) -> [(usize, f32); 2] {
     }
 }
 
-/// Normals and descriptors of `keypoints` over `cloud`.
+/// Descriptors of `keypoints` over `cloud` (`points`: its positions, `normals`: its normals).
 pub(crate) fn compute_features(
     cloud: &VoxelCloud,
+    points: &[Point3<f32>],
+    normals: &[Option<Vector3<f32>>],
     index: &PointIndex,
     keypoints: &[Point3<f32>],
     params: &MatcherParams,
 ) -> Features {
-    let points: Vec<Point3<f32>> = cloud.points.iter().map(|p| p.position_m).collect();
     let radius = params.descriptor_radius_m as f32;
-    let normal_radius = params.normal_radius_m as f32;
     let intensity_bins = params.intensity_bins.max(1);
     let dim = descriptor_len(params);
 
-    // Supports first, so that normals are computed once for the points some support needs.
     let mut supports: Vec<Vec<usize>> = Vec::with_capacity(keypoints.len());
     let mut scratch = Vec::new();
     for k in keypoints {
         index.within(k, radius, &mut scratch);
         supports.push(if scratch.len() >= params.min_support_points { scratch.clone() } else { Vec::new() });
-    }
-    let mut normals: Vec<Option<Option<Vector3<f32>>>> = vec![None; points.len()];
-    for support in &supports {
-        for &j in support {
-            if normals[j].is_none() {
-                normals[j] = Some(normal_at(&points, index, j, normal_radius, &mut scratch));
-            }
-        }
     }
 
     let mut keypoint = Vec::new();
@@ -114,13 +104,13 @@ pub(crate) fn compute_features(
         if support.is_empty() {
             continue;
         }
-        let Some(lrf) = local_frame(&points, support, k, radius) else { continue };
+        let Some(lrf) = local_frame(points, support, k, radius) else { continue };
         hist.iter_mut().for_each(|h| *h = 0.0);
         let mean_intensity =
             support.iter().map(|&j| f32::from(cloud.points[j].intensity)).sum::<f32>() / support.len() as f32;
         let z_axis: Vector3<f32> = lrf.row(2).transpose();
         for &j in support {
-            let Some(Some(normal)) = normals[j] else { continue };
+            let Some(normal) = normals[j] else { continue };
             let local = lrf * (points[j] - k);
             let dist = local.norm();
             if !(dist <= radius) {

@@ -1,5 +1,5 @@
-//! Levenberg–Marquardt point-to-point ICP on the full clouds (§6.1.2 e, trap T13), in 4
-//! parameters (x, y, z, yaw; roll and pitch exactly as initialised) or 6.
+//! Levenberg–Marquardt ICP on the full clouds (§6.1.2 e, trap T13), in 4 parameters (x, y, z,
+//! yaw; roll and pitch exactly as initialised) or 6.
 //!
 //! Parametrisation. The estimate `T = t_target_source` is updated on the right,
 //! `T ← T·Δ(δ)` with `Δ(δ) = (Rz(δ_yaw), δ_xyz)` in 4D (which keeps a gravity-aligned `T`
@@ -8,22 +8,28 @@
 //! `T·Exp([ρ; φ])`, so the normal equations at the optimum are directly in the graph's tangent
 //! (see `covariance`).
 //!
+//! Residual ([`IcpMetric`]). Point-to-plane by default: `n_qᵀ(T·s − q)` with the target
+//! point's normal. The thesis's point-to-point residual `T·s − q` is available; on terrain it
+//! needs ~100 iterations where point-to-plane needs ~10 (see [`IcpMetric::PointToPoint`]).
+//! Either way the reported RMSE is the point-to-point one of the final pairs, as the thesis's.
+//!
 //! Pairs. Each source point, moved by the current estimate, is paired with its nearest target
 //! point if closer than a gate that starts at `icp_max_distance_start_m` and shrinks by
 //! `icp_distance_shrink` per iteration down to `icp_max_distance_final_m`: a wide gate first so
 //! that a RANSAC estimate a few decimetres off still finds its surfaces, a narrow one at the end
 //! so that points without a counterpart (the non-overlapping parts) do not bias the estimate.
 //! The gate is the only trimming: no robust weights, which keeps the final RMSE and the
-//! covariance's residual variance the plain statistics of the inlier pairs.
+//! covariance's residual variance the plain statistics of the inlier pairs. While the gate is
+//! above its floor only every `icp_coarse_stride`-th source point is paired.
 //!
 //! Per pair set, LM iterates (at most [`INNER_ITERATIONS`]) with Marquardt's diagonal damping;
 //! with fixed pairs the problem is nearly linear, so it mostly accepts the first Gauss–Newton
 //! step. The loop ends when, at the final gate, a step moves the estimate by less than the
 //! epsilons.
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, RowVector6, Translation3, UnitQuaternion, Vector3, Vector6};
 
-use super::params::{MatchMode, MatcherParams};
+use super::params::{IcpMetric, MatchMode, MatcherParams};
 use super::spatial::PointIndex;
 
 const INNER_ITERATIONS: usize = 5;
@@ -40,45 +46,109 @@ pub(crate) struct IcpResult {
     pub t_target_source: Isometry3<f64>,
     /// (source index, target index) pairs within the final gate at the final estimate.
     pub pairs: Vec<(usize, usize)>,
+    /// Point-to-point RMSE over `pairs`.
     pub rmse_m: f64,
     pub iterations: usize,
 }
 
-/// `[I, −[s]×]`: the Jacobian of `T·Δ(δ)·s` at δ = 0 with the rotation R of T factored out
-/// (it cancels in JᵀJ and is applied to the residual instead).
-fn jacobian_in_source(s: &Vector3<f64>) -> nalgebra::Matrix3x6<f64> {
-    let mut a = nalgebra::Matrix3x6::zeros();
-    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-s.cross_matrix()));
-    a
+/// The clouds and the residual of one ICP problem.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Problem<'a> {
+    pub source: &'a [Point3<f32>],
+    pub target: &'a [Point3<f32>],
+    /// Target normals; pairs whose target point has none are not formed in point-to-plane mode.
+    pub target_normals: &'a [Option<Vector3<f32>>],
+    pub metric: IcpMetric,
 }
 
-/// JᵀJ, Jᵀe and Σ|e|² over `pairs` at `t`, in the full 6-D tangent `[ρ, φ]`.
-pub(crate) fn normal_equations(
-    t: &Isometry3<f64>,
-    source: &[Point3<f32>],
-    target: &[Point3<f32>],
-    pairs: &[(usize, usize)],
-) -> (Matrix6<f64>, Vector6<f64>, f64) {
-    let r_t = t.rotation.inverse();
-    let mut h = Matrix6::zeros();
-    let mut g = Vector6::zeros();
-    let mut cost = 0.0;
-    for &(si, ti) in pairs {
-        let s = source[si].coords.cast::<f64>();
-        let e = t * Point3::from(s) - target[ti].cast::<f64>();
-        // J = R·A, so JᵀJ = AᵀA and Jᵀe = Aᵀ(Rᵀe).
-        let e_source = r_t * e;
-        let a = jacobian_in_source(&s);
-        h += a.transpose() * a;
-        g += a.transpose() * e_source;
-        cost += e.norm_squared();
+impl Problem<'_> {
+    /// JᵀJ, Jᵀe and Σe² over `pairs` at `t`, in the full 6-D tangent `[ρ, φ]`.
+    ///
+    /// With `A_i = [I, −[s_i]×]` the Jacobian of `Δ(δ)·s_i` at δ = 0, the point-to-point
+    /// residual's Jacobian is `R·A_i` (R cancels in JᵀJ; Jᵀe = A_iᵀ(Rᵀe)) and the
+    /// point-to-plane residual's is `n_iᵀR·A_i = [m_iᵀ, (s_i × m_i)ᵀ]` with `m_i = Rᵀn_i`.
+    pub(crate) fn normal_equations(
+        &self,
+        t: &Isometry3<f64>,
+        pairs: &[(usize, usize)],
+    ) -> (Matrix6<f64>, Vector6<f64>, f64) {
+        let r_t = t.rotation.inverse();
+        let mut h = Matrix6::zeros();
+        let mut g = Vector6::zeros();
+        let mut cost = 0.0;
+        for &(si, ti) in pairs {
+            let s = self.source[si].coords.cast::<f64>();
+            let e = t * Point3::from(s) - self.target[ti].cast::<f64>();
+            match self.metric {
+                IcpMetric::PointToPoint => {
+                    let e_source = r_t * e;
+                    let mut a = nalgebra::Matrix3x6::zeros();
+                    a.fixed_view_mut::<3, 3>(0, 0).fill_with_identity();
+                    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-s.cross_matrix()));
+                    h += a.transpose() * a;
+                    g += a.transpose() * e_source;
+                    cost += e.norm_squared();
+                }
+                IcpMetric::PointToPlane => {
+                    let Some(n) = self.target_normals.get(ti).copied().flatten() else { continue };
+                    let n = n.cast::<f64>();
+                    let r = n.dot(&e);
+                    let m = r_t * n;
+                    let c = s.cross(&m);
+                    let row = RowVector6::new(m.x, m.y, m.z, c.x, c.y, c.z);
+                    h += row.transpose() * row;
+                    g += row.transpose() * r;
+                    cost += r * r;
+                }
+            }
+        }
+        (h, g, cost)
     }
-    (h, g, cost)
-}
 
-fn cost(t: &Isometry3<f64>, source: &[Point3<f32>], target: &[Point3<f32>], pairs: &[(usize, usize)]) -> f64 {
-    pairs.iter().map(|&(si, ti)| (t * source[si].cast::<f64>() - target[ti].cast::<f64>()).norm_squared()).sum()
+    fn cost(&self, t: &Isometry3<f64>, pairs: &[(usize, usize)]) -> f64 {
+        pairs
+            .iter()
+            .map(|&(si, ti)| {
+                let e = t * self.source[si].cast::<f64>() - self.target[ti].cast::<f64>();
+                match self.metric {
+                    IcpMetric::PointToPoint => e.norm_squared(),
+                    IcpMetric::PointToPlane => {
+                        self.target_normals.get(ti).copied().flatten().map_or(0.0, |n| n.cast::<f64>().dot(&e).powi(2))
+                    }
+                }
+            })
+            .sum()
+    }
+
+    fn point_rmse(&self, t: &Isometry3<f64>, pairs: &[(usize, usize)]) -> f64 {
+        let sum: f64 = pairs
+            .iter()
+            .map(|&(si, ti)| (t * self.source[si].cast::<f64>() - self.target[ti].cast::<f64>()).norm_squared())
+            .sum();
+        (sum / pairs.len().max(1) as f64).sqrt()
+    }
+
+    fn pairs_within(
+        &self,
+        t: &Isometry3<f64>,
+        index: &PointIndex,
+        gate_m: f64,
+        stride: usize,
+        out: &mut Vec<(usize, usize)>,
+    ) {
+        out.clear();
+        let gate2 = (gate_m * gate_m) as f32;
+        let tf = t.cast::<f32>();
+        let need_normal = self.metric == IcpMetric::PointToPlane;
+        for si in (0..self.source.len()).step_by(stride.max(1)) {
+            if let Some((ti, d2)) = index.nearest(&(tf * self.source[si]))
+                && d2 <= gate2
+                && (!need_normal || self.target_normals.get(ti).is_some_and(Option::is_some))
+            {
+                out.push((si, ti));
+            }
+        }
+    }
 }
 
 /// The tangent indices the mode estimates, in `[ρx, ρy, ρz, φx, φy, φz]`.
@@ -119,51 +189,34 @@ fn damped_step(h: &Matrix6<f64>, g: &Vector6<f64>, lambda: f64, mode: MatchMode)
     delta.iter().all(|v| v.is_finite()).then_some(delta)
 }
 
-fn pairs_within(
-    t: &Isometry3<f64>,
-    source: &[Point3<f32>],
-    target_index: &PointIndex,
-    gate_m: f64,
-    out: &mut Vec<(usize, usize)>,
-) {
-    out.clear();
-    let gate2 = (gate_m * gate_m) as f32;
-    let tf = t.cast::<f32>();
-    for (si, s) in source.iter().enumerate() {
-        if let Some((ti, d2)) = target_index.nearest(&(tf * s))
-            && d2 <= gate2
-        {
-            out.push((si, ti));
-        }
-    }
-}
-
 pub(crate) fn icp(
-    source: &[Point3<f32>],
-    target: &[Point3<f32>],
+    problem: &Problem<'_>,
     target_index: &PointIndex,
     initial: &Isometry3<f64>,
     params: &MatcherParams,
 ) -> Result<IcpResult, IcpFailure> {
     let mode = params.mode;
     let min_pairs = params.icp_min_pairs.max(active_indices(mode).len());
+    let final_gate = params.icp_max_distance_final_m;
     let mut t = *initial;
     let mut pairs = Vec::new();
     let mut iterations = 0;
-    let mut gate = params.icp_max_distance_start_m.max(params.icp_max_distance_final_m);
+    let mut gate = params.icp_max_distance_start_m.max(final_gate);
     for it in 0..params.icp_max_iterations.max(1) {
         iterations = it + 1;
-        pairs_within(&t, source, target_index, gate, &mut pairs);
-        if pairs.len() < min_pairs {
+        let at_final_gate = gate <= final_gate;
+        let stride = if at_final_gate { 1 } else { params.icp_coarse_stride.max(1) };
+        problem.pairs_within(&t, target_index, gate, stride, &mut pairs);
+        if pairs.len() * stride < min_pairs {
             return Err(IcpFailure::TooFewPairs);
         }
         let before = t;
         let mut lambda = 1e-4;
-        let (mut h, mut g, mut current) = normal_equations(&t, source, target, &pairs);
+        let (mut h, mut g, mut current) = problem.normal_equations(&t, &pairs);
         for _ in 0..INNER_ITERATIONS {
             let Some(delta) = damped_step(&h, &g, lambda, mode) else { return Err(IcpFailure::Degenerate) };
             let candidate = t * increment(&delta, mode);
-            let candidate_cost = cost(&candidate, source, target, &pairs);
+            let candidate_cost = problem.cost(&candidate, &pairs);
             if candidate_cost < current {
                 t = candidate;
                 lambda = (lambda * 0.1).max(1e-9);
@@ -172,7 +225,7 @@ pub(crate) fn icp(
                 {
                     break;
                 }
-                (h, g, current) = normal_equations(&t, source, target, &pairs);
+                (h, g, current) = problem.normal_equations(&t, &pairs);
             } else {
                 lambda *= 10.0;
                 if lambda > 1e6 {
@@ -181,19 +234,18 @@ pub(crate) fn icp(
             }
         }
         let step = before.inverse() * t;
-        let at_final_gate = gate <= params.icp_max_distance_final_m;
         if at_final_gate
             && step.translation.vector.norm() < params.icp_translation_epsilon_m
             && step.rotation.angle() < params.icp_rotation_epsilon_rad
         {
             break;
         }
-        gate = (gate * params.icp_distance_shrink).max(params.icp_max_distance_final_m);
+        gate = (gate * params.icp_distance_shrink).max(final_gate);
     }
-    pairs_within(&t, source, target_index, params.icp_max_distance_final_m, &mut pairs);
+    problem.pairs_within(&t, target_index, final_gate, 1, &mut pairs);
     if pairs.len() < min_pairs {
         return Err(IcpFailure::TooFewPairs);
     }
-    let rmse_m = (cost(&t, source, target, &pairs) / pairs.len() as f64).sqrt();
+    let rmse_m = problem.point_rmse(&t, &pairs);
     Ok(IcpResult { t_target_source: t, pairs, rmse_m, iterations })
 }

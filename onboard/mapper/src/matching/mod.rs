@@ -84,7 +84,7 @@ mod spatial;
 #[cfg(test)]
 mod tests;
 
-pub use params::{MatchMode, MatcherParams};
+pub use params::{IcpMetric, MatchMode, MatcherParams};
 pub use pipeline::match_clouds;
 pub use prepared::PreparedCloud;
 pub use report::{MatchFound, MatchReport, Rejection, RelativePrior, StageTimes, Unsuitable};

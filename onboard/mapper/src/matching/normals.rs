@@ -54,3 +54,9 @@ pub(crate) fn normal_at(
     let len = normal.norm();
     (len > 0.5).then(|| normal / len)
 }
+
+/// Normals of every point (None where undefined).
+pub(crate) fn all_normals(points: &[Point3<f32>], index: &PointIndex, radius_m: f32) -> Vec<Option<Vector3<f32>>> {
+    let mut scratch = Vec::new();
+    (0..points.len()).map(|i| normal_at(points, index, i, radius_m, &mut scratch)).collect()
+}

@@ -7,9 +7,9 @@ use nalgebra::{Isometry3, Point3};
 use super::correspondences::{Correspondence, find_correspondences};
 use super::covariance::match_covariance;
 use super::hough::{Direction, Side, cluster};
-use super::icp::icp;
+use super::icp::{Problem, icp};
 use super::keypoints::line_spread;
-use super::params::{MatchMode, MatcherParams};
+use super::params::{IcpMetric, MatchMode, MatcherParams};
 use super::prepared::PreparedCloud;
 use super::ransac::ransac;
 use super::report::{MatchFound, MatchReport, Rejection, RelativePrior, StageTimes};
@@ -162,7 +162,16 @@ fn run(
     let best = &hyps[chosen?];
 
     let t3 = Instant::now();
-    let result = icp(source.positions(), target.positions(), target.index(), &best.t_target_source, params);
+    let problem = Problem {
+        source: source.positions(),
+        target: target.positions(),
+        target_normals: match params.icp_metric {
+            IcpMetric::PointToPlane => target.normals(),
+            IcpMetric::PointToPoint => &[],
+        },
+        metric: params.icp_metric,
+    };
+    let result = icp(&problem, target.index(), &best.t_target_source, params);
     let outcome = result.map_err(|_| Rejection::IcpFailed).and_then(|r| {
         let smaller = source.positions().len().min(target.positions().len()).max(1);
         if r.rmse_m > params.icp_max_rmse_m || (r.pairs.len() as f64) < params.icp_min_pair_fraction * smaller as f64 {
@@ -176,8 +185,8 @@ fn run(
         if params.mode == MatchMode::SixDof && !roll_pitch_within(&r.t_target_source, params.max_roll_pitch_icp_rad) {
             return Err(Rejection::RollPitchImplausible);
         }
-        let covariance = match_covariance(&r.t_target_source, source.positions(), target.positions(), &r.pairs, params)
-            .ok_or(Rejection::IcpFailed)?;
+        let covariance =
+            match_covariance(&r.t_target_source, &problem, &r.pairs, params).ok_or(Rejection::IcpFailed)?;
         Ok(MatchFound {
             t_target_source: r.t_target_source,
             covariance,

@@ -5,10 +5,11 @@
 use std::fmt;
 use std::sync::{Arc, OnceLock};
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector3};
 
 use super::descriptor::{Features, compute_features};
 use super::keypoints::{line_spread, obstacle_keypoints};
+use super::normals::all_normals;
 use super::params::MatcherParams;
 use super::report::Unsuitable;
 use super::spatial::PointIndex;
@@ -24,6 +25,7 @@ pub struct PreparedCloud {
     keypoints: Vec<Point3<f32>>,
     suitability: Result<(), Unsuitable>,
     index: OnceLock<PointIndex>,
+    normals: OnceLock<Vec<Option<Vector3<f32>>>>,
     features: OnceLock<Features>,
 }
 
@@ -70,6 +72,7 @@ impl PreparedCloud {
             keypoints,
             suitability,
             index: OnceLock::new(),
+            normals: OnceLock::new(),
             features: OnceLock::new(),
         }
     }
@@ -110,7 +113,15 @@ impl PreparedCloud {
         self.index.get_or_init(|| PointIndex::new(&self.positions))
     }
 
+    /// Normals of every point, for the descriptors and for point-to-plane ICP on this cloud as
+    /// the target.
+    pub(crate) fn normals(&self) -> &[Option<Vector3<f32>>] {
+        self.normals.get_or_init(|| all_normals(&self.positions, self.index(), self.params.normal_radius_m as f32))
+    }
+
     pub(crate) fn features(&self) -> &Features {
-        self.features.get_or_init(|| compute_features(&self.cloud, self.index(), &self.keypoints, &self.params))
+        self.features.get_or_init(|| {
+            compute_features(&self.cloud, &self.positions, self.normals(), self.index(), &self.keypoints, &self.params)
+        })
     }
 }

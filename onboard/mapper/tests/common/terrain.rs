@@ -4,7 +4,8 @@
 //! with its own sensor noise and its own 5 cm voxelisation, as two robots' submaps would be.
 #![allow(dead_code)]
 
-use mapper::cloud::{CLOUD_LEAF_M, MapPoint, VoxelCloud};
+// The includer provides the cloud types (the crate itself or `mapper`).
+use super::{CLOUD_LEAF_M, MapPoint, VoxelCloud};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// SplitMix64, so the terrain is the same on every platform.
