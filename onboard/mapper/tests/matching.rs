@@ -3,6 +3,7 @@
 
 mod common {
     pub use mapper::cloud::{CLOUD_LEAF_M, MapPoint, VoxelCloud};
+    pub mod lidar;
     pub mod terrain;
 }
 
@@ -62,4 +63,25 @@ fn four_dof_recovers_the_terrain_transform() {
     let sigma_xy = found.covariance[(0, 0)].sqrt();
     assert!(sigma_xy > 0.005 && sigma_xy < 0.1, "σx {sigma_xy}");
     assert!(report.times.total_s > 0.0);
+}
+
+#[test]
+fn lidar_pair_matches_the_reference_in_4d() {
+    let params = MatcherParams::default();
+    let source = common::lidar::cloud("source", 20.0, 0.3);
+    let target = common::lidar::cloud("target", 20.0, 0.3);
+    eprintln!(
+        "lidar: {} ({} obstacle) + {} ({} obstacle) points",
+        source.len(),
+        source.obstacle_count(),
+        target.len(),
+        target.obstacle_count()
+    );
+    let reference = common::lidar::reference();
+    let pair = Pair { source, target, t_target_source: reference };
+    let report = run(&pair, &params, None);
+    let found = report.outcome.expect("a match");
+    let (dt, dr) = errors(&found.t_target_source, &reference);
+    eprintln!("lidar error {dt:.4} m {dr:.3}°");
+    assert!(dt < 0.05 && dr < 0.3, "error {dt:.3} m, {dr:.2}°");
 }
