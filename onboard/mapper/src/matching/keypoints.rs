@@ -113,7 +113,7 @@ mod tests {
         let line = ransac_line(&pts, 0.2, 200, 1).unwrap();
         let angle = line.direction.y.atan2(line.direction.x).to_degrees().rem_euclid(180.0);
         assert!((angle - 30.0).abs() < 3.0, "line direction {angle}°");
-        assert!(line.distance(&Point3::new(1.0, 2.0, 0.0)) < 0.2);
+        assert!(line.distance_xy(&Point3::new(1.0, 2.0, 0.0)) < 0.1);
     }
 
     #[test]

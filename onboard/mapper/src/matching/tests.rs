@@ -67,3 +67,62 @@ fn lm_icp_converges_from_a_perturbed_start() {
         assert!(dt < 0.02 && dr < 0.2, "{mode:?}: error {dt:.3} m, {dr:.2}°");
     }
 }
+
+/// The LRFs and descriptors of the same keypoints on a rigidly moved cloud: each LRF moves with
+/// the cloud, and each descriptor stays the same (up to the sign ambiguities of near-symmetric
+/// supports, which SHOT's majority vote does not always resolve).
+#[test]
+fn lrf_and_descriptor_are_invariant_to_rigid_motion() {
+    use super::descriptor::compute_features;
+    use super::keypoints::obstacle_keypoints;
+    use super::normals::all_normals;
+    use super::spatial::PointIndex;
+
+    let pair = terrain::standard_pair(0.01);
+    let params = MatcherParams::default();
+    let motions = [
+        Isometry3::from_parts(
+            Translation3::new(3.0, -7.0, 0.4),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 1.1),
+        ),
+        Isometry3::from_parts(Translation3::new(-1.0, 2.0, 0.0), UnitQuaternion::from_euler_angles(0.1, -0.08, 2.5)),
+    ];
+    let cloud = &pair.source;
+    let keypoints = obstacle_keypoints(cloud, params.keypoint_voxel_m);
+    let points: Vec<Point3<f32>> = cloud.points.iter().map(|p| p.position_m).collect();
+    let index = PointIndex::new(&points);
+    let normals = all_normals(&points, &index, params.normal_radius_m as f32);
+    let original = compute_features(cloud, &points, &normals, &index, &keypoints, &params);
+    for motion in motions {
+        let m = motion.cast::<f32>();
+        let moved = VoxelCloud {
+            leaf_m: CLOUD_LEAF_M,
+            points: cloud.points.iter().map(|p| MapPoint { position_m: m * p.position_m, ..*p }).collect(),
+        };
+        let moved_points: Vec<Point3<f32>> = moved.points.iter().map(|p| p.position_m).collect();
+        let moved_keypoints: Vec<Point3<f32>> = keypoints.iter().map(|k| m * k).collect();
+        let moved_index = PointIndex::new(&moved_points);
+        let moved_normals = all_normals(&moved_points, &moved_index, params.normal_radius_m as f32);
+        let after = compute_features(&moved, &moved_points, &moved_normals, &moved_index, &moved_keypoints, &params);
+        let rotation = m.rotation.to_rotation_matrix().into_inner();
+        let (mut same_frame, mut similar, mut both) = (0, 0, 0);
+        for (i, k) in original.keypoint.iter().enumerate() {
+            let Some(j) = after.keypoint.iter().position(|x| x == k) else { continue };
+            both += 1;
+            if (after.lrf[j] - original.lrf[i] * rotation.transpose()).amax() < 0.05 {
+                same_frame += 1;
+            }
+            if original.descriptors.column(i).dot(&after.descriptors.column(j)) > 0.95 {
+                similar += 1;
+            }
+        }
+        eprintln!(
+            "{} of {} keypoints described in both; LRF moved with the cloud: {same_frame}; descriptor cosine > 0.95: {similar}",
+            both,
+            original.len()
+        );
+        assert!(both as f64 > 0.95 * original.len() as f64);
+        assert!(same_frame as f64 > 0.9 * both as f64, "{same_frame} of {both}");
+        assert!(similar as f64 > 0.9 * both as f64, "{similar} of {both}");
+    }
+}
