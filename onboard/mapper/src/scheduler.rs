@@ -36,15 +36,17 @@ use crate::slam::{
 };
 
 /// Where attempts run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy)]
 pub enum Executor {
     Inline,
     /// On one thread that first calls `setup` (the firmware lowers its scheduling class there and
     /// frees it from the mapper task's CPU pinning: this crate does not touch the OS).
-    Background { setup: fn() },
+    Background {
+        setup: fn(),
+    },
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct SchedulerConfig {
     pub matcher: MatcherParams,
     pub pairing: PairingParams,
@@ -57,7 +59,13 @@ pub struct SchedulerConfig {
 
 impl SchedulerConfig {
     pub fn new(matcher: MatcherParams, pairing: PairingParams, executor: Executor) -> SchedulerConfig {
-        SchedulerConfig { matcher, pairing, executor, rerank_period_ns: 2_000_000_000, attempt_period_ns: 1_000_000_000 }
+        SchedulerConfig {
+            matcher,
+            pairing,
+            executor,
+            rerank_period_ns: 2_000_000_000,
+            attempt_period_ns: 1_000_000_000,
+        }
     }
 }
 
@@ -83,6 +91,8 @@ pub struct AttemptRecord {
 pub struct SchedulerStats {
     pub submaps_added: u64,
     pub submaps_unsuitable: u64,
+    /// Unsuitable submaps by the failed check's name.
+    pub unsuitable_by: BTreeMap<&'static str, u64>,
     pub attempts: u64,
     pub accepted: u64,
     /// Rejected attempts by the rejecting check's name.
@@ -230,6 +240,7 @@ impl MatchScheduler {
             }
             Err(why) => {
                 self.stats.submaps_unsuitable += 1;
+                *self.stats.unsuitable_by.entry(why.name()).or_default() += 1;
                 self.unsuitable.insert(id, why);
             }
         }

@@ -682,6 +682,7 @@ impl Default for RoverConfig {
             rates: RatesConfig::default(),
             mapper: MapperConfig::default(),
             markers: MarkersConfig::default(),
+            matching: MatchingConfig::default(),
             link: LinkConfig::default(),
             realtime: RealtimeConfig::default(),
             recording: RecordingConfig::default(),
@@ -880,9 +881,11 @@ impl RoverConfig {
         check(m.min_overlap_m2.is_finite() && m.min_overlap_m2 >= 0.0, "matching.min_overlap_m2", || {
             format!("{} m²: must not be negative", m.min_overlap_m2)
         })?;
-        check(m.overlap_weight_per_m2.is_finite() && m.overlap_weight_per_m2 >= 0.0, "matching.overlap_weight_per_m2", || {
-            format!("{}: must not be negative", m.overlap_weight_per_m2)
-        })?;
+        check(
+            m.overlap_weight_per_m2.is_finite() && m.overlap_weight_per_m2 >= 0.0,
+            "matching.overlap_weight_per_m2",
+            || format!("{}: must not be negative", m.overlap_weight_per_m2),
+        )?;
         Ok(())
     }
 
