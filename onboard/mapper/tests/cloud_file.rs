@@ -18,7 +18,11 @@ fn point(x: f32, y: f32, z: f32, intensity: u8, obstacle: bool) -> MapPoint {
 fn project_ply_export_reads_back_with_obstacle_flags_in_both_encodings() {
     let cloud = VoxelCloud {
         leaf_m: 0.05,
-        points: vec![point(1.0, -2.5, 0.25, 17, false), point(0.5, 0.0, -1.0, 0, true), point(3.0, 4.0, 5.0, 255, false)],
+        points: vec![
+            point(1.0, -2.5, 0.25, 17, false),
+            point(0.5, 0.0, -1.0, 0, true),
+            point(3.0, 4.0, 5.0, 255, false),
+        ],
     };
     for format in [PlyFormat::Ascii, PlyFormat::BinaryLittleEndian] {
         let mut bytes = Vec::new();
@@ -31,10 +35,11 @@ fn project_ply_export_reads_back_with_obstacle_flags_in_both_encodings() {
 
 #[test]
 fn generic_ply_with_doubles_intensity_a_leading_element_and_faces() {
-    let mut bytes = b"ply\nformat binary_big_endian 1.0\ncomment not ours\nelement camera 1\nproperty list uchar int ids\n\
+    let mut bytes =
+        b"ply\nformat binary_big_endian 1.0\ncomment not ours\nelement camera 1\nproperty list uchar int ids\n\
         property double height\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\n\
         property float intensity\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
-        .to_vec();
+            .to_vec();
     bytes.push(2);
     bytes.extend_from_slice(&[0; 8]);
     bytes.extend_from_slice(&1.0f64.to_be_bytes());
@@ -63,7 +68,8 @@ fn pcd_ascii_with_extra_fields_and_binary_with_intensity() {
     assert_eq!(read.points, vec![point(1.0, 2.0, 3.0, 0, true)]);
     assert_eq!(read.dropped_non_finite, 1);
 
-    let mut binary = b"VERSION .7\nFIELDS x y z intensity\nSIZE 4 4 4 1\nTYPE F F F U\nWIDTH 1\nHEIGHT 1\nDATA binary\n".to_vec();
+    let mut binary =
+        b"VERSION .7\nFIELDS x y z intensity\nSIZE 4 4 4 1\nTYPE F F F U\nWIDTH 1\nHEIGHT 1\nDATA binary\n".to_vec();
     [0.5f32, -0.5, 2.0].iter().for_each(|v| binary.extend_from_slice(&v.to_le_bytes()));
     binary.push(200);
     assert_eq!(parse_cloud(&binary).unwrap().points, vec![point(0.5, -0.5, 2.0, 200, true)]);

@@ -124,7 +124,9 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudParseError> {
                 // POINTS is authoritative; older files give only WIDTH and HEIGHT.
                 let points = match (points, width, height) {
                     (Some(p), _, _) => p,
-                    (None, Some(w), Some(h)) => w.checked_mul(h).ok_or_else(|| header_error("WIDTH·HEIGHT overflows"))?,
+                    (None, Some(w), Some(h)) => {
+                        w.checked_mul(h).ok_or_else(|| header_error("WIDTH·HEIGHT overflows"))?
+                    }
                     _ => return Err(header_error("neither POINTS nor WIDTH and HEIGHT")),
                 };
                 return Ok(Header { fields, points, kind, data_start: offset });
@@ -151,7 +153,10 @@ fn read_ascii(
         values.clear();
         for token in line.split_ascii_whitespace() {
             // PCL writes "nan" for no return; Rust spells it "NaN" too, both parse.
-            values.push(parse_ascii(token).ok_or_else(|| data_error(format!("point {index}"), format!("'{token}' is not a number")))?);
+            values.push(
+                parse_ascii(token)
+                    .ok_or_else(|| data_error(format!("point {index}"), format!("'{token}' is not a number")))?,
+            );
         }
         if values.len() != values_per_point {
             return Err(data_error(
@@ -177,7 +182,10 @@ fn read_binary(
     }
     let needed = record_len.checked_mul(header.points).ok_or_else(|| header_error("POINTS·record size overflows"))?;
     if data.len() < needed {
-        return Err(data_error("data", format!("{} bytes for {} points of {record_len} bytes", data.len(), header.points)));
+        return Err(data_error(
+            "data",
+            format!("{} bytes for {} points of {record_len} bytes", data.len(), header.points),
+        ));
     }
     let mut sink = PointSink::with_capacity(header.points, data.len(), record_len);
     for record in data.chunks_exact(record_len).take(header.points) {

@@ -21,7 +21,10 @@ enum Encoding {
 enum PropertyKind {
     Scalar(Scalar),
     /// `property list COUNT_TYPE ITEM_TYPE name`
-    List { count: Scalar, item: Scalar },
+    List {
+        count: Scalar,
+        item: Scalar,
+    },
 }
 
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -58,7 +61,9 @@ pub(super) fn parse(bytes: &[u8]) -> Result<CloudFile, CloudParseError> {
     let header = parse_header(bytes)?;
     let data = bytes.get(header.data_start..).unwrap_or_default();
     let mut cursor = match header.encoding {
-        Encoding::Ascii => Cursor::Ascii(std::str::from_utf8(data).map_err(|e| data_error("data", e.to_string()))?.split_ascii_whitespace()),
+        Encoding::Ascii => Cursor::Ascii(
+            std::str::from_utf8(data).map_err(|e| data_error("data", e.to_string()))?.split_ascii_whitespace(),
+        ),
         Encoding::Binary(endian) => Cursor::Binary { data, offset: 0, endian },
     };
     for element in &header.elements {
@@ -145,7 +150,8 @@ impl Cursor<'_> {
                 parse_ascii(token).ok_or_else(|| format!("'{token}' is not a number"))
             }
             Cursor::Binary { data, offset, endian } => {
-                let value = scalar.decode(data.get(*offset..).unwrap_or_default(), *endian).ok_or("the data ends early")?;
+                let value =
+                    scalar.decode(data.get(*offset..).unwrap_or_default(), *endian).ok_or("the data ends early")?;
                 *offset += scalar.size();
                 Ok(value)
             }
@@ -165,7 +171,8 @@ impl Cursor<'_> {
                     // Binary lists are skipped in one step; a huge length ends the data.
                     Cursor::Binary { data, offset, .. } => {
                         let len = (n as usize).checked_mul(item.size()).ok_or("list length overflows")?;
-                        *offset = offset.checked_add(len).filter(|end| *end <= data.len()).ok_or("the data ends early")?;
+                        *offset =
+                            offset.checked_add(len).filter(|end| *end <= data.len()).ok_or("the data ends early")?;
                     }
                     Cursor::Ascii(_) => {
                         for _ in 0..n as usize {
@@ -242,7 +249,8 @@ fn read_vertices(
             break;
         }
         for (value, property) in values.iter_mut().zip(&element.properties) {
-            *value = cursor.property(&property.kind).map_err(|m| data_error(format!("vertex {index}"), m))?.unwrap_or(0.0);
+            *value =
+                cursor.property(&property.kind).map_err(|m| data_error(format!("vertex {index}"), m))?.unwrap_or(0.0);
         }
         let xyz = [values[ix], values[iy], values[iz]];
         match colour {

@@ -18,7 +18,9 @@ pub(super) fn parse(bytes: &[u8]) -> Result<CloudFile, CloudParseError> {
         let mut tokens = line.split(|c: char| c.is_ascii_whitespace() || c == ',').filter(|t| !t.is_empty());
         let mut xyz = [0.0; 3];
         for value in &mut xyz {
-            let token = tokens.next().ok_or_else(|| data_error(format!("line {}", number + 1), "fewer than 3 values".to_owned()))?;
+            let token = tokens
+                .next()
+                .ok_or_else(|| data_error(format!("line {}", number + 1), "fewer than 3 values".to_owned()))?;
             *value = parse_ascii(token)
                 .ok_or_else(|| data_error(format!("line {}", number + 1), format!("'{token}' is not a number")))?;
         }
