@@ -8,8 +8,8 @@ use nalgebra::Vector3;
 
 pub const USAGE: &str = "\
 usage: submap-match --source A --target B [--up X,Y,Z] [--prior TX,TY,TZ,YAW --prior-sigma S]
-                    [--mode 4d|6d] [--scale F] [--voxel-m V] [--min-points N] [--icp-min-pairs N]
-                    [--intensity-weight W] [--json]
+                    [--mode 4d|6d] [--scale F] [--voxel-m V] [--spread-m D] [--min-points N]
+                    [--icp-min-pairs N] [--intensity-weight W] [--json]
 
 Finds the transform that maps the source cloud's coordinates into the target cloud's
 (p_target = T · p_source) with the submap matcher (mapper::matching, thesis §6.1).
@@ -35,6 +35,10 @@ Finds the transform that maps the source cloud's coordinates into the target clo
                  the Stanford bunny (~15 cm, points ~6 mm apart).
   --voxel-m V    voxel filter applied to both inputs (default 0.05·F, the submaps' leaf); 0
                  keeps every point.
+  --spread-m D   the descriptiveness and distribution checks' distance (default 0.5·F): keypoints
+                 farther than D from their line (in xy) count as spread. It relates to the size
+                 of the scene, not to the resolution as the other lengths do: an object much
+                 smaller than a submap needs a smaller value than --scale gives.
   --min-points N smallest cloud (default 1000) and, a tenth of it, smallest obstacle count
   --icp-min-pairs N
                  fewest ICP pairs of a match (default 300)
@@ -133,6 +137,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Option<Args>, U
     let (mut source, mut target, mut json) = (None, None, false);
     let mut up = Vector3::z();
     let (mut prior, mut prior_sigma) = (None, None);
+    let mut spread_m = None;
     let (mut scale, mut voxel_m, mut min_points, mut icp_min_pairs, mut intensity_weight) =
         (1.0, None, None, None, None);
     let mut mode = MatchMode::FourDof;
@@ -154,6 +159,7 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Option<Args>, U
             }
             Long("scale") => scale = positive("scale", number("scale", parser.value()?)?)?,
             Long("voxel-m") => voxel_m = Some(number::<f64>("voxel-m", parser.value()?)?),
+            Long("spread-m") => spread_m = Some(positive("spread-m", number("spread-m", parser.value()?)?)?),
             Long("min-points") => min_points = Some(number::<usize>("min-points", parser.value()?)?),
             Long("icp-min-pairs") => icp_min_pairs = Some(number::<usize>("icp-min-pairs", parser.value()?)?),
             Long("intensity-weight") => intensity_weight = Some(number::<f32>("intensity-weight", parser.value()?)?),
@@ -180,6 +186,9 @@ pub fn parse(args: impl IntoIterator<Item = OsString>) -> Result<Option<Args>, U
     }
     let mut params = MatcherParams::with_mode(mode);
     scale_lengths(&mut params, scale);
+    if let Some(d) = spread_m {
+        params.line_spread_distance_m = d;
+    }
     if let Some(n) = min_points {
         params.min_points = n;
         params.min_obstacle_points = n / 10;
