@@ -4,6 +4,7 @@
 //! - [`cloud`]: the 5 cm voxel point cloud (centroid, intensity, obstacle bit per voxel).
 //! - [`occupancy`]: the 10 cm probabilistic occupancy octree (OctoMap log-odds semantics).
 //! - [`integrate`]: one depth image (with its obstacle labels) into a submap's cloud and octree.
+//! - [`matching`]: the submap matcher (thesis §6.1): map-matching loop closures.
 //! - [`submap`]: a submap and the policy that starts the next one (filter frame switch).
 //! - [`exchange`]: compact, lossless encoding of a finished submap for the radio.
 //! - [`global`]: composition of all submaps at their graph poses, cached.
@@ -29,6 +30,7 @@ pub mod exchange;
 pub mod export;
 pub mod global;
 pub mod integrate;
+pub mod matching;
 pub mod occupancy;
 pub mod slam;
 pub mod submap;
