@@ -39,18 +39,18 @@ impl UpAlignment {
     }
 
     /// A transform between the inputs expressed between the aligned clouds.
-    pub fn to_aligned(&self, t_input: &Isometry3<f64>) -> Isometry3<f64> {
+    pub fn aligned_from_input(&self, t_input: &Isometry3<f64>) -> Isometry3<f64> {
         let r = Isometry3::from_parts(Translation3::identity(), self.r_aligned_input);
         r * t_input * r.inverse()
     }
 
     /// A transform between the aligned clouds expressed between the inputs.
-    pub fn to_input(&self, t_aligned: &Isometry3<f64>) -> Isometry3<f64> {
+    pub fn input_from_aligned(&self, t_aligned: &Isometry3<f64>) -> Isometry3<f64> {
         let r = Isometry3::from_parts(Translation3::identity(), self.r_aligned_input);
         r.inverse() * t_aligned * r
     }
 
-    /// The covariance of [`UpAlignment::to_input`]'s result.
+    /// The covariance of [`UpAlignment::input_from_aligned`]'s result.
     pub fn covariance_to_input(&self, covariance_aligned: &Matrix6<f64>) -> Matrix6<f64> {
         let rt = self.r_aligned_input.to_rotation_matrix().into_inner().transpose();
         let mut j = Matrix6::zeros();
@@ -78,9 +78,12 @@ mod tests {
             let r = a.r_aligned_input;
             assert!((r * up - Vector3::z()).norm() < 1e-12, "{up:?}");
             let t = Isometry3::new(Vector3::new(0.5, -1.0, 2.0), up * 0.7);
-            assert!((a.to_input(&a.to_aligned(&t)).to_homogeneous() - t.to_homogeneous()).abs().max() < 1e-12);
+            assert!(
+                (a.input_from_aligned(&a.aligned_from_input(&t)).to_homogeneous() - t.to_homogeneous()).abs().max()
+                    < 1e-12
+            );
             // A rotation about `up` in the input is a pure yaw once aligned.
-            let aligned = a.to_aligned(&t);
+            let aligned = a.aligned_from_input(&t);
             let (roll, pitch, yaw) = aligned.rotation.euler_angles();
             assert!(roll.abs() < 1e-9 && pitch.abs() < 1e-9 && (yaw - 0.7).abs() < 1e-9, "{up:?}");
             let back = a.yaw_about_up(0.7);

@@ -47,7 +47,10 @@ fn run(args: &Args) -> Result<Run, UsageError> {
             Translation3::from(p.translation_m),
             UnitQuaternion::from_rotation_matrix(&alignment.yaw_about_up(p.yaw_rad)),
         );
-        RelativePrior { t_target_source: alignment.to_aligned(&t_input), delta_sigma_m: Vector3::repeat(p.sigma_m) }
+        RelativePrior {
+            t_target_source: alignment.aligned_from_input(&t_input),
+            delta_sigma_m: Vector3::repeat(p.sigma_m),
+        }
     });
 
     let start = Instant::now();

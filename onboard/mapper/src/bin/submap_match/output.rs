@@ -22,7 +22,7 @@ fn input_frame_match(run: &Run, found: &MatchFound) -> InputFrameMatch {
     // The yaw is read in the aligned frame, where the up direction is z.
     let (_, _, yaw_rad) = found.t_target_source.rotation.euler_angles();
     InputFrameMatch {
-        t_target_source: run.alignment.to_input(&found.t_target_source),
+        t_target_source: run.alignment.input_from_aligned(&found.t_target_source),
         covariance: run.alignment.covariance_to_input(&found.covariance),
         yaw_rad,
     }
