@@ -85,13 +85,23 @@ fn main() {
     let repetitions = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(5usize).max(1);
     let pair = common::terrain::standard_pair(0.01);
     bench("terrain (8 m × 8 m crops, 45 rocks)", &pair.source, &pair.target, &pair.t_target_source, repetitions);
-    let source = common::lidar::cloud("source", 20.0, 0.3);
-    let target = common::lidar::cloud("target", 20.0, 0.3);
-    bench(
-        "lidar pair (20 m range, obstacles > 0.3 m above local ground)",
-        &source,
-        &target,
-        &common::lidar::reference(),
-        repetitions,
-    );
+    let lidar = || -> Result<_, String> {
+        Ok((
+            common::lidar::cloud("source", 20.0, 0.3)?,
+            common::lidar::cloud("target", 20.0, 0.3)?,
+            common::lidar::reference()?,
+        ))
+    };
+    match lidar() {
+        Ok((source, target, reference)) => {
+            bench(
+                "lidar pair (20 m range, obstacles > 0.3 m above local ground)",
+                &source,
+                &target,
+                &reference,
+                repetitions,
+            );
+        }
+        Err(e) => eprintln!("lidar pair: {e}"),
+    }
 }

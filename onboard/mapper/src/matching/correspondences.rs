@@ -81,7 +81,7 @@ pub(crate) fn find_correspondences(
         }
     }
     out.retain(|c| c.similarity >= min_similarity);
-    out.sort_by(|a, b| (a.source, a.target).cmp(&(b.source, b.target)));
+    out.sort_by_key(|c| (c.source, c.target));
     out.dedup_by(|a, b| a.source == b.source && a.target == b.target);
     out
 }
