@@ -8,8 +8,10 @@
 # - xvfb, xauth, x11-apps (xwd), Mesa's software GL (libgl1-mesa-dri, libegl1) and the X client
 #   libraries winit loads at run time: the ground station's real-window test runs the eframe app
 #   under Xvfb on llvmpipe and grabs the window.
+# - libusb-1.0-0: the open3d wheel (the submap matcher's reference) links libusb-1.0 and fails to
+#   import without it.
 SYSTEM_PACKAGES=(iproute2 fonts-dejavu-core xvfb xauth x11-apps libgl1-mesa-dri libegl1 libxkbcommon-x11-0
-    libxcursor1 libxrandr2 libxi6)
+    libxcursor1 libxrandr2 libxi6 libusb-1.0-0)
 
 ensure_system_packages() {
     local missing=()
@@ -46,7 +48,7 @@ ensure_python_venv() {
     fi
     "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PYTHON_REQUIREMENTS"
     # Fail here, not deep inside a test, if the wheels do not import on this machine.
-    "$venv/bin/python" -c "import cv2, numpy, gtsam, evo"
+    "$venv/bin/python" -c "import cv2, numpy, gtsam, evo, open3d"
     echo "$want" >"$stamp"
 }
 

@@ -14,6 +14,8 @@
 //! - [`export`]: PLY point cloud, OctoMap `.bt`, top-down height/traversability PNG.
 //! - [`slam`]: the multi-robot SLAM front-end: what enters each robot's pose graph of the team.
 //! - [`wire`]: team-protocol messages to and from `slam` measurements, submap fragmentation.
+//! - `cloud_file` (feature `cli`, off in the firmware): PLY/PCD/XYZ point-cloud files for the
+//!   `submap-match` tool, tests and benchmarks.
 //!
 //! # Frames
 //!
@@ -22,9 +24,11 @@
 //! coordinates into it. The global map is in the robot's own global (graph) frame; a submap
 //! enters it through `t_global_submap`.
 //!
-//! This crate does no file or network I/O: encoders write into `Vec<u8>`/`impl Write`.
+//! Apart from `cloud_file`, this crate does no file or network I/O: encoders write into `Vec<u8>`/`impl Write`.
 
 pub mod cloud;
+#[cfg(feature = "cli")]
+pub mod cloud_file;
 pub mod exchange;
 pub mod export;
 pub mod global;

@@ -67,8 +67,8 @@ fn four_dof_recovers_the_terrain_transform() {
 #[test]
 fn lidar_pair_matches_the_reference_in_4d() {
     let params = MatcherParams::default();
-    let source = common::lidar::cloud("source", 20.0, 0.3);
-    let target = common::lidar::cloud("target", 20.0, 0.3);
+    let source = common::lidar::cloud("source", 20.0, 0.3).unwrap();
+    let target = common::lidar::cloud("target", 20.0, 0.3).unwrap();
     eprintln!(
         "lidar: {} ({} obstacle) + {} ({} obstacle) points",
         source.len(),
@@ -76,7 +76,7 @@ fn lidar_pair_matches_the_reference_in_4d() {
         target.len(),
         target.obstacle_count()
     );
-    let reference = common::lidar::reference();
+    let reference = common::lidar::reference().unwrap();
     let pair = Pair { source, target, t_target_source: reference };
     let report = run(&pair, &params, None);
     let found = report.outcome.expect("a match");

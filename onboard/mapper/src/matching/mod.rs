@@ -66,6 +66,8 @@
 //! Thesis reference values: mean 3.07 s (descriptor matching) + 2.38 s (ICP) per pair on a Xeon
 //! E5-1620 (§8.4); this implementation's times are in the crate README.
 
+#![allow(clippy::neg_cmp_op_on_partial_ord, reason = "the negated comparisons reject NaN on purpose")]
+
 mod correspondences;
 mod covariance;
 mod descriptor;

@@ -186,7 +186,7 @@ impl Default for MatcherParams {
             icp_metric: IcpMetric::PointToPlane,
             icp_coarse_stride: 4,
             icp_max_distance_start_m: 0.6,
-            icp_distance_shrink: 0.8,
+            icp_distance_shrink: 0.6,
             icp_max_distance_final_m: 0.15,
             icp_max_iterations: 30,
             icp_translation_epsilon_m: 1e-4,

@@ -42,13 +42,18 @@ pub fn read_ply(path: &str) -> Result<Vec<[f32; 4]>, String> {
 }
 
 /// The reference `T_target_source` (rotation re-orthonormalised).
-pub fn reference() -> Isometry3<f64> {
-    let text = std::fs::read_to_string(format!("{DIR}/T_target_source.txt")).expect("T_target_source.txt");
-    let v: Vec<f64> = text.split_whitespace().map(|t| t.parse().expect("number")).collect();
+pub fn reference() -> Result<Isometry3<f64>, String> {
+    let path = format!("{DIR}/T_target_source.txt");
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("{path}: {e}"))?;
+    let v: Vec<f64> =
+        text.split_whitespace().map(str::parse).collect::<Result<_, _>>().map_err(|e| format!("{path}: {e}"))?;
+    if v.len() < 16 {
+        return Err(format!("{path}: {} numbers, not 16", v.len()));
+    }
     let m = Matrix4::from_row_slice(&v[..16]);
     let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into_owned();
     let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
-    Isometry3::from_parts(Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]), rotation)
+    Ok(Isometry3::from_parts(Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]), rotation))
 }
 
 /// A scan as a submap cloud: points within `range_m` (horizontal) of the sensor, voxel-filtered
@@ -56,8 +61,8 @@ pub fn reference() -> Isometry3<f64> {
 /// `obstacle_height_m` above the lowest point of its 1 m × 1 m column (a local ground
 /// estimate): the lidar has no stereo obstacle classifier, and flagging everything would make
 /// the flat road keypoints too.
-pub fn cloud(name: &str, range_m: f32, obstacle_height_m: f32) -> VoxelCloud {
-    let raw = read_ply(&format!("{DIR}/{name}.ply")).expect("lidar ply");
+pub fn cloud(name: &str, range_m: f32, obstacle_height_m: f32) -> Result<VoxelCloud, String> {
+    let raw = read_ply(&format!("{DIR}/{name}.ply"))?;
     let near: Vec<[f32; 4]> =
         raw.into_iter().filter(|p| p[0].hypot(p[1]) <= range_m && p.iter().all(|v| v.is_finite())).collect();
     let mut ground: std::collections::HashMap<(i32, i32), f32> = std::collections::HashMap::new();
@@ -70,7 +75,7 @@ pub fn cloud(name: &str, range_m: f32, obstacle_height_m: f32) -> VoxelCloud {
     let points: Vec<MapPoint> = near
         .iter()
         .map(|p| {
-            let floor = ground[&(p[0].floor() as i32, p[1].floor() as i32)];
+            let floor = ground.get(&(p[0].floor() as i32, p[1].floor() as i32)).copied().unwrap_or(p[2]);
             MapPoint {
                 position_m: Point3::new(p[0], p[1], p[2]),
                 intensity: (p[3] / max_intensity * 255.0).round().clamp(0.0, 255.0) as u8,
@@ -78,5 +83,5 @@ pub fn cloud(name: &str, range_m: f32, obstacle_height_m: f32) -> VoxelCloud {
             }
         })
         .collect();
-    VoxelCloud::filtered(CLOUD_LEAF_M, &points)
+    Ok(VoxelCloud::filtered(CLOUD_LEAF_M, &points))
 }
