@@ -216,7 +216,13 @@ mod tests {
         (0..=n).flat_map(|i| (0..=n).map(move |j| Point3::new(i as f32 * step_m, j as f32 * step_m, 0.0))).collect()
     }
 
-    fn placed(id: SubmapId, x_m: f64, yaw_rad: f64, var_m2: Vector3<f64>, keypoints: &[Point3<f32>]) -> PlacedSubmap<'_> {
+    fn placed(
+        id: SubmapId,
+        x_m: f64,
+        yaw_rad: f64,
+        var_m2: Vector3<f64>,
+        keypoints: &[Point3<f32>],
+    ) -> PlacedSubmap<'_> {
         PlacedSubmap {
             id,
             t_global_submap: Isometry3::from_parts(

@@ -155,7 +155,9 @@ impl MatchingReport {
         let mut mean_stage_s = [0.0; 5];
         for record in log {
             let t = &record.times;
-            for (sum, v) in mean_stage_s.iter_mut().zip([t.features_s, t.correspondences_s, t.hough_ransac_s, t.icp_s, t.total_s]) {
+            for (sum, v) in
+                mean_stage_s.iter_mut().zip([t.features_s, t.correspondences_s, t.hough_ransac_s, t.icp_s, t.total_s])
+            {
                 *sum += v;
             }
         }

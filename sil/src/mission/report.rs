@@ -131,13 +131,12 @@ impl MissionReport {
                 "robot detections (AprilTag tag36h11, on-board, {model} model): {tags} tags seen, {detections} in the graphs"
             ));
         }
-        let matchers: Vec<&super::matching::MatchingReport> = self.robots.iter().filter_map(|r| r.matching.as_ref()).collect();
+        let matchers: Vec<&super::matching::MatchingReport> =
+            self.robots.iter().filter_map(|r| r.matching.as_ref()).collect();
         if !matchers.is_empty() {
             let attempts: u64 = matchers.iter().map(|m| m.attempts).sum();
             let accepted: u64 = matchers.iter().map(|m| m.accepted).sum();
-            sources.push(format!(
-                "submap matches (on-board 4D matcher): {attempts} attempts, {accepted} accepted"
-            ));
+            sources.push(format!("submap matches (on-board 4D matcher): {attempts} attempts, {accepted} accepted"));
         }
         if self.truth_loop_closures {
             sources.push("simulator ground truth (test-only: sim::truth_constraints)".to_owned());

@@ -30,8 +30,8 @@ use std::sync::Arc;
 use hal::sensor::StereoCalibration;
 use mapper::Submap;
 use mapper::global::{GlobalMap, GlobalMapConfig};
-use mapper::scheduler::{MatchScheduler, SchedulerConfig};
 use mapper::integrate::{DepthIntegrator, IntegratorConfig};
+use mapper::scheduler::{MatchScheduler, SchedulerConfig};
 use mapper::slam::{
     self, FilterPose, FramePose, GraphSize, InsertOutcome, Measurement, NodeId, PoseBuffer, SameStamp, SubmapPair,
     SubmapSwitch, TeamEstimate, TeamGraph, TeamGraphConfig, TeamMarkers,
