@@ -126,3 +126,11 @@ fn lrf_and_descriptor_are_invariant_to_rigid_motion() {
         assert!(similar as f64 > 0.9 * both as f64, "{similar} of {both}");
     }
 }
+
+/// The pairing side and a matcher thread share clouds as `Arc<PreparedCloud>`.
+#[test]
+fn prepared_clouds_and_reports_cross_threads() {
+    fn send_sync<T: Send + Sync>() {}
+    send_sync::<PreparedCloud>();
+    send_sync::<super::MatchReport>();
+}
