@@ -138,6 +138,15 @@ pub fn delta_sigma_m(variance_a_m2: &Vector3<f64>, variance_b_m2: &Vector3<f64>,
     })
 }
 
+/// Δσ ranked in global axes, in the axes of the frame `t_global_frame` (the matcher compares
+/// translations in the target submap's frame): the diagonal of the rotated diagonal covariance.
+pub fn delta_sigma_in_frame(delta_sigma_global_m: &Vector3<f64>, t_global_frame: &Isometry3<f64>) -> Vector3<f64> {
+    let r = t_global_frame.rotation.to_rotation_matrix();
+    let sigma2_global = Matrix3::from_diagonal(&delta_sigma_global_m.map(|s| s * s));
+    let sigma2_frame = r.matrix().transpose() * sigma2_global * r.matrix();
+    sigma2_frame.diagonal().map(|v| v.max(0.0).sqrt())
+}
+
 /// The pairing rules for one pair, given both submaps' bounds and global variances.
 fn assess(
     pair: SubmapPair,

@@ -216,6 +216,11 @@ impl MatchScheduler {
         &self.log
     }
 
+    /// The suitable submaps, ascending.
+    pub fn prepared_ids(&self) -> impl Iterator<Item = SubmapId> + '_ {
+        self.prepared.keys().copied()
+    }
+
     /// A suitable submap as the matcher holds it.
     pub fn prepared(&self, id: SubmapId) -> Option<&Arc<PreparedCloud>> {
         self.prepared.get(&id)
@@ -377,11 +382,7 @@ impl MatchScheduler {
                 continue;
             };
             let prior_t_a_b = t_global_a.inverse() * t_global_b;
-            // Δσ was ranked in global axes; the matcher compares translations in a's frame.
-            let r = t_global_a.rotation.to_rotation_matrix();
-            let sigma2_global = Matrix3::from_diagonal(&candidate.delta_sigma_m.map(|s| s * s));
-            let sigma2_a = r.matrix().transpose() * sigma2_global * r.matrix();
-            let delta_sigma_m = sigma2_a.diagonal().map(|v| v.max(0.0).sqrt());
+            let delta_sigma_m = crate::pairing::delta_sigma_in_frame(&candidate.delta_sigma_m, &t_global_a);
             let prior = RelativePrior { t_target_source: prior_t_a_b, delta_sigma_m };
             let job = Job {
                 pair,

@@ -143,11 +143,10 @@ pub fn matching_config(config: &RoverConfig, rectified: &StereoCalibration) -> O
     if !m.enabled {
         return None;
     }
-    let mut matcher = MatcherParams::default();
-    matcher.mode = match m.mode {
+    let matcher = MatcherParams::with_mode(match m.mode {
         MatchModeConfig::FourD => MatchMode::FourDof,
         MatchModeConfig::SixD => MatchMode::SixDof,
-    };
+    });
     let pairing = PairingParams {
         min_overlap_m2: m.min_overlap_m2,
         overlap_weight_per_m2: m.overlap_weight_per_m2,

@@ -33,6 +33,9 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
                          baseline) or off (the default with --truth-loop-closures)
   --compare-match-modes  after a lockstep mission, match every attempted pair again in the
                          other mode (4d <-> 6d) with the same prior; both are scored in the report
+  --evaluate-match-pairs after a lockstep mission, match every truly overlapping pair of the
+                         first robot's suitable submaps in 4d and 6d (its final estimate as the
+                         prior) and score them in the report
   --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
                          ground truth with the thesis's noise models: a TEST-ONLY source for
                          comparisons, next to the robots' own detections; reports say so;
@@ -122,6 +125,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             }
             Long("truth-loop-closures") => options.truth_loop_closures = true,
             Long("compare-match-modes") => options.compare_match_modes = true,
+            Long("evaluate-match-pairs") => options.evaluate_match_pairs = true,
             Long("matching") => {
                 matching = Some(match text(&mut parser, "--matching")?.as_str() {
                     "off" => None,

@@ -301,6 +301,24 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             processes.push(ProcessReport::lockstep(robot_id(robot), name, *seconds));
         }
     }
+    let pair_evaluation = match robots.first_mut() {
+        Some(first) if options.evaluate_match_pairs => {
+            let marginals = first
+                .stack
+                .mapper
+                .submap_marginals()
+                .map_err(|e| MissionError::Output(format!("marginals for the pair evaluation: {e}")))?
+                .into_iter()
+                .map(|(id, m)| (id, m.fixed_view::<3, 3>(0, 0).into_owned()))
+                .collect();
+            let mapper = &first.stack.mapper;
+            mapper.matcher().map(|m| {
+                let min_overlap_m2 = m.config().pairing.min_overlap_m2;
+                super::matching::PairEvaluation::run(m, mapper.graph(), &marginals, min_overlap_m2, &true_origin)
+            })
+        }
+        _ => None,
+    };
     ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
     let report = MissionReport {
         runner: "lockstep".to_owned(),
@@ -312,6 +330,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         marker_model: marker_model_name(options),
         robots: robot_reports,
         processes,
+        pair_evaluation,
     };
     super::write_report(out, &report)?;
     Ok(report)

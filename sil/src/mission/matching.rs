@@ -12,9 +12,12 @@
 
 use std::collections::BTreeMap;
 
+use mapper::matching::RelativePrior;
+use mapper::pairing::{PlacedSubmap, delta_sigma_in_frame, delta_sigma_m, global_position_variance_m2, xy_bounds};
 use mapper::scheduler::{AttemptRecord, MatchScheduler};
-use mapper::slam::SubmapId;
+use mapper::slam::{SubmapId, SubmapPair, TeamGraph};
 use nalgebra::Isometry3;
+use nalgebra::Matrix3;
 use serde_json::{Value, json};
 
 pub const FALSE_POSITIVE_TRANSLATION_M: f64 = 0.6;
@@ -53,6 +56,9 @@ pub struct MatchingReport {
     pub rejected: BTreeMap<String, u64>,
     /// Pairs still queued at the end (thesis T16: the queue at the end bounds the count).
     pub queued: usize,
+    /// Open pairs the last ranking left out, by rule (eqs. 6.1–6.3), and unsuitable submaps by check.
+    pub skipped: BTreeMap<String, u64>,
+    pub unsuitable_by: BTreeMap<String, u64>,
     /// Mean time per attempt by stage (s): features, correspondences, Hough + RANSAC, ICP, total.
     pub mean_stage_s: [f64; 5],
     /// Accepted matches against the truth (lockstep runner only).
@@ -69,6 +75,8 @@ pub struct OtherMode {
     pub accepted: u64,
     pub rejected: BTreeMap<String, u64>,
     pub scores: Vec<MatchScore>,
+    /// Matching time of all attempts (s).
+    pub total_s: f64,
 }
 
 impl OtherMode {
@@ -79,25 +87,37 @@ impl OtherMode {
         mode: &str,
         true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>,
     ) -> OtherMode {
+        let pairs: Vec<(SubmapPair, RelativePrior)> = scheduler
+            .log()
+            .iter()
+            .map(|r| (r.pair, RelativePrior { t_target_source: r.prior_t_a_b, delta_sigma_m: r.delta_sigma_m }))
+            .collect();
+        Self::match_pairs(scheduler, &pairs, params, mode, true_origin)
+    }
+
+    /// Matches `pairs` (target = first, source = second) with their priors.
+    pub fn match_pairs(
+        scheduler: &MatchScheduler,
+        pairs: &[(SubmapPair, RelativePrior)],
+        params: &mapper::matching::MatcherParams,
+        mode: &str,
+        true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>,
+    ) -> OtherMode {
         let mut other = OtherMode { mode: mode.to_owned(), ..OtherMode::default() };
-        for record in scheduler.log() {
-            let (Some(target), Some(source)) =
-                (scheduler.prepared(record.pair.first()), scheduler.prepared(record.pair.second()))
+        for (pair, prior) in pairs {
+            let (Some(target), Some(source)) = (scheduler.prepared(pair.first()), scheduler.prepared(pair.second()))
             else {
                 continue;
             };
-            let prior = mapper::matching::RelativePrior {
-                t_target_source: record.prior_t_a_b,
-                delta_sigma_m: record.delta_sigma_m,
-            };
-            let report = mapper::matching::match_clouds(source, target, Some(&prior), params);
+            let report = mapper::matching::match_clouds(source, target, Some(prior), params);
             other.attempts += 1;
+            other.total_s += report.times.total_s;
             let result = match &report.outcome {
                 Ok(found) => {
                     other.accepted += 1;
                     Ok(mapper::slam::SubmapMatch {
-                        a: record.pair.first(),
-                        b: record.pair.second(),
+                        a: pair.first(),
+                        b: pair.second(),
                         t_a_b: found.t_target_source,
                         covariance: found.covariance,
                     })
@@ -107,25 +127,29 @@ impl OtherMode {
                     Err(rejection.name())
                 }
             };
-            let rematched = AttemptRecord {
+            let record = AttemptRecord {
+                pair: *pair,
+                started_ns: 0,
+                prior_t_a_b: prior.t_target_source,
+                delta_sigma_m: prior.delta_sigma_m,
                 result,
                 rmse_m: report.outcome.as_ref().ok().map(|f| f.rmse_m),
                 correspondences: report.correspondences,
                 hypotheses: report.hypotheses,
                 times: report.times,
-                ..record.clone()
             };
-            other.scores.extend(score(&rematched, true_origin));
+            other.scores.extend(score(&record, true_origin));
         }
         other
     }
 
-    fn to_json(&self) -> Value {
+    pub fn to_json(&self) -> Value {
         json!({
             "mode": self.mode,
             "attempts": self.attempts,
             "accepted": self.accepted,
             "rejected": self.rejected,
+            "mean_attempt_s": if self.attempts > 0 { self.total_s / self.attempts as f64 } else { 0.0 },
             "false_positives": self.scores.iter().filter(|s| s.false_positive()).count(),
             "matches": self.scores.iter().map(score_json).collect::<Vec<_>>(),
         })
@@ -171,6 +195,17 @@ impl MatchingReport {
             accepted: stats.accepted,
             rejected: stats.rejected.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
             queued: stats.queued,
+            skipped: [
+                ("unplaced", stats.last_skips.unplaced),
+                ("disjoint", stats.last_skips.disjoint),
+                ("small_overlap", stats.last_skips.small_overlap),
+                ("below_precision", stats.last_skips.precise),
+            ]
+            .into_iter()
+            .filter(|(_, n)| *n > 0)
+            .map(|(k, n)| (k.to_owned(), n as u64))
+            .collect(),
+            unsuitable_by: stats.unsuitable_by.iter().map(|(k, v)| ((*k).to_owned(), *v)).collect(),
             mean_stage_s,
             scores: log.iter().filter_map(|r| score(r, true_origin)).collect(),
             other_mode: None,
@@ -190,6 +225,8 @@ impl MatchingReport {
             "accepted": self.accepted,
             "rejected": self.rejected,
             "queued": self.queued,
+            "skipped": self.skipped,
+            "unsuitable_by": self.unsuitable_by,
             "mean_stage_s": {
                 "features": self.mean_stage_s[0],
                 "correspondences": self.mean_stage_s[1],
@@ -206,14 +243,23 @@ impl MatchingReport {
     /// One line: attempts, accepted, rejections by check, errors of the accepted.
     pub fn summary_line(&self) -> String {
         let rejected: Vec<String> = self.rejected.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let list = |m: &BTreeMap<String, u64>| {
+            if m.is_empty() {
+                "none".to_owned()
+            } else {
+                m.iter().map(|(k, v)| format!("{k} {v}")).collect::<Vec<_>>().join(", ")
+            }
+        };
         let mut line = format!(
-            "{} attempts, {} accepted, rejected: {}; {} of {} submaps unsuitable; {} queued; {:.2} s per attempt",
+            "{} attempts, {} accepted, rejected: {}; {} of {} submaps unsuitable ({}); {} queued, last ranking skipped: {}; {:.2} s per attempt",
             self.attempts,
             self.accepted,
             if rejected.is_empty() { "none".to_owned() } else { rejected.join(", ") },
             self.submaps_unsuitable,
             self.submaps_checked,
+            list(&self.unsuitable_by),
             self.queued,
+            list(&self.skipped),
             self.mean_stage_s[4]
         );
         if !self.scores.is_empty() {
@@ -266,4 +312,125 @@ fn score(record: &AttemptRecord, true_origin: &dyn Fn(SubmapId) -> Option<Isomet
 fn yaw_rad(t: &Isometry3<f64>) -> f64 {
     let r = t.rotation.to_rotation_matrix().into_inner();
     r[(1, 0)].atan2(r[(0, 0)])
+}
+
+/// Every pair of suitable submaps one robot's matcher holds whose obstacle keypoints truly
+/// overlap by more than `min_overlap_m2` in xy, matched in 4D and in 6D with the robot's final
+/// graph estimate as the prior and Δσ = sqrt(Σ_a + Σ_b) from its marginals (the pairing's
+/// precision cut, ownership and the ledger left aside): per-match accuracy on the same pairs.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PairEvaluation {
+    /// Pairs with a true overlap; of these, those both placed in the robot's graph were matched.
+    pub overlapping: usize,
+    pub unplaced: usize,
+    pub four_d: OtherMode,
+    pub six_d: OtherMode,
+}
+
+impl PairEvaluation {
+    pub fn run(
+        scheduler: &MatchScheduler,
+        graph: &TeamGraph,
+        marginals: &BTreeMap<SubmapId, Matrix3<f64>>,
+        min_overlap_m2: f64,
+        true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>,
+    ) -> PairEvaluation {
+        let ids: Vec<SubmapId> = scheduler.prepared_ids().collect();
+        let mut evaluation = PairEvaluation::default();
+        let mut pairs = Vec::new();
+        for (i, &a) in ids.iter().enumerate() {
+            for &b in &ids[i + 1..] {
+                let pair = SubmapPair::new(a, b);
+                if pair.is_consecutive() {
+                    continue;
+                }
+                let (Some(prep_a), Some(prep_b), Some(true_a), Some(true_b)) =
+                    (scheduler.prepared(a), scheduler.prepared(b), true_origin(a), true_origin(b))
+                else {
+                    continue;
+                };
+                let at_truth = |id, t, keypoints| PlacedSubmap {
+                    id,
+                    t_global_submap: t,
+                    position_covariance_m2: Matrix3::zeros(),
+                    keypoints,
+                };
+                let (Some(ba), Some(bb)) = (
+                    xy_bounds(&at_truth(a, true_a, prep_a.keypoints())),
+                    xy_bounds(&at_truth(b, true_b, prep_b.keypoints())),
+                ) else {
+                    continue;
+                };
+                let ox = ba[2].min(bb[2]) - ba[0].max(bb[0]);
+                let oy = ba[3].min(bb[3]) - ba[1].max(bb[1]);
+                if ox <= 0.0 || oy <= 0.0 || ox * oy <= min_overlap_m2 {
+                    continue;
+                }
+                evaluation.overlapping += 1;
+                let placed = |id| {
+                    Some(PlacedSubmap {
+                        id,
+                        t_global_submap: graph.node_pose(mapper::slam::NodeId::Submap(id))?,
+                        position_covariance_m2: *marginals.get(&id)?,
+                        keypoints: &[],
+                    })
+                };
+                let (Some(pa), Some(pb)) = (placed(a), placed(b)) else {
+                    evaluation.unplaced += 1;
+                    continue;
+                };
+                let sigma_global = delta_sigma_m(
+                    &global_position_variance_m2(&pa),
+                    &global_position_variance_m2(&pb),
+                    mapper::pairing::DeltaSigma::Sum,
+                );
+                let prior = RelativePrior {
+                    t_target_source: pa.t_global_submap.inverse() * pb.t_global_submap,
+                    delta_sigma_m: delta_sigma_in_frame(&sigma_global, &pa.t_global_submap),
+                };
+                pairs.push((pair, prior));
+            }
+        }
+        let base = scheduler.config().matcher.clone();
+        let four = mapper::matching::MatcherParams { mode: mapper::matching::MatchMode::FourDof, ..base.clone() };
+        let six = mapper::matching::MatcherParams { mode: mapper::matching::MatchMode::SixDof, ..base };
+        evaluation.four_d = OtherMode::match_pairs(scheduler, &pairs, &four, "4d", true_origin);
+        evaluation.six_d = OtherMode::match_pairs(scheduler, &pairs, &six, "6d", true_origin);
+        evaluation
+    }
+
+    /// One line: pairs, and per mode accepted, false positives, median errors and NEES.
+    pub fn summary_line(&self) -> String {
+        let mode = |m: &OtherMode| {
+            let mut t: Vec<f64> = m.scores.iter().map(|s| s.translation_error_m).collect();
+            t.sort_by(f64::total_cmp);
+            let mut yaw: Vec<f64> = m.scores.iter().map(|s| s.yaw_error_deg).collect();
+            yaw.sort_by(f64::total_cmp);
+            let nees = m.scores.iter().map(|s| s.nees).sum::<f64>() / m.scores.len().max(1) as f64;
+            let fp = m.scores.iter().filter(|s| s.false_positive()).count();
+            match (t.get(t.len() / 2), yaw.get(yaw.len() / 2)) {
+                (Some(t), Some(y)) => format!(
+                    "{}: {} of {} accepted, {fp} false positive(s), median error {t:.3} m / {y:.2}°, mean NEES {nees:.1}",
+                    m.mode, m.accepted, m.attempts
+                ),
+                _ => format!("{}: {} of {} accepted", m.mode, m.accepted, m.attempts),
+            }
+        };
+        format!(
+            "pair evaluation: {} truly overlapping pairs ({} not placed in the graph); {}; {}",
+            self.overlapping,
+            self.unplaced,
+            mode(&self.four_d),
+            mode(&self.six_d)
+        )
+    }
+
+    pub fn to_json(&self) -> Value {
+        json!({
+            "overlapping_pairs": self.overlapping,
+            "unplaced_pairs": self.unplaced,
+            "4d": self.four_d.to_json(),
+            "6d": self.six_d.to_json(),
+        })
+    }
 }

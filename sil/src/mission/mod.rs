@@ -70,6 +70,9 @@ pub struct MissionOptions {
     /// Lockstep runner: after the mission, every pair the matchers attempted is matched again in
     /// the other mode (4D ↔ 6D) with the same prior, and scored (thesis §8.1.2).
     pub compare_match_modes: bool,
+    /// Lockstep runner: after the mission, every pair of suitable submaps that truly overlaps is
+    /// matched in 4D and 6D with the first robot's final estimate as the prior, and scored.
+    pub evaluate_match_pairs: bool,
     /// The ground station's UDP address; `None`: an in-process stand-in acknowledges the
     /// robots' ground links. Either way the ground traffic is recorded in `out/ground_feed.log`.
     pub feed: Option<SocketAddr>,
@@ -101,6 +104,7 @@ impl Default for MissionOptions {
             markers: Some(onboard::config::MarkerModelConfig::LutOnline),
             matching: Some(onboard::config::MatchModeConfig::FourD),
             compare_match_modes: false,
+            evaluate_match_pairs: false,
             feed: None,
             ground_key: None,
             ground_link: crate::relay::GroundLinkEmulation::default(),

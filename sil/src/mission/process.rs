@@ -383,6 +383,7 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         marker_model: marker_model_name(options),
         robots,
         processes,
+        pair_evaluation: None,
     };
     super::write_report(&out, &report)?;
     Ok(report)

@@ -83,6 +83,8 @@ pub struct MissionReport {
     pub marker_model: Option<String>,
     pub robots: Vec<RobotReport>,
     pub processes: Vec<ProcessReport>,
+    /// The first robot's truly overlapping submap pairs matched in 4D and 6D (`evaluate_match_pairs`).
+    pub pair_evaluation: Option<super::matching::PairEvaluation>,
 }
 
 /// Team aggregate of the scored robots: distance and errors averaged over robots, the maximum
@@ -240,6 +242,7 @@ impl MissionReport {
             "imu_lost": self.robots.iter().map(|r| r.imu_lost).sum::<u64>(),
             "robots": robots,
             "processes": processes,
+            "pair_evaluation": self.pair_evaluation.as_ref().map(super::matching::PairEvaluation::to_json),
         })
     }
 
@@ -307,6 +310,9 @@ impl MissionReport {
             if let Some(m) = &r.matching {
                 let _ = writeln!(out, "robot {} matcher: {}", r.robot, m.summary_line());
             }
+        }
+        if let Some(e) = &self.pair_evaluation {
+            let _ = writeln!(out, "{}", e.summary_line());
         }
         let cpu: f64 = self.processes.iter().map(|p| p.cpu_s).sum();
         let overruns = self.deadline_overruns().map_or("not measured (lockstep)".to_owned(), |n| n.to_string());
@@ -402,6 +408,9 @@ impl MissionReport {
                     let _ = writeln!(out, "- robot {}: {}", r.robot, m.summary_line());
                 }
             }
+        }
+        if let Some(e) = &self.pair_evaluation {
+            let _ = writeln!(out, "\n## Pair evaluation\n\n{}", e.summary_line());
         }
         out.push_str("\n## Bytes sent per message class\n\n| robot | class | bytes |\n|---|---|---|\n");
         for r in &self.robots {

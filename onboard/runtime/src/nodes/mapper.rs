@@ -411,6 +411,12 @@ impl MapperNode {
         &self.graph
     }
 
+    /// The graph's marginal covariance of every submap origin (an evaluation's prior; the
+    /// matcher computes its own when it ranks).
+    pub fn submap_marginals(&mut self) -> Result<Vec<(slam::SubmapId, nalgebra::Matrix6<f64>)>, slam::SlamError> {
+        self.graph.submap_marginals()
+    }
+
     /// The submap matcher's state, log and counters (`None` when matching is off).
     pub fn matcher(&self) -> Option<&MatchScheduler> {
         self.matcher.as_ref()
