@@ -38,6 +38,10 @@ fn lockstep_mission_writes_outputs_scores_robots_and_repeats_exactly() {
         assert!(json[key].as_f64().is_some_and(f64::is_finite), "report.json lacks {key}: {json}");
     }
     assert_eq!(json["truth_loop_closures"], false);
+    // The submap matcher runs on every robot by default (30 s finish no submap to match yet).
+    for robot in json["robots"].as_array().unwrap() {
+        assert!(robot["matching"]["attempts"].as_u64().is_some(), "no matcher ran: {robot}");
+    }
     assert_eq!(json["marker_model"], "LUT + online");
     assert!(std::fs::read_to_string(first.join("report.md")).unwrap().contains("## Robot detections"));
     // Robot 1 sees robot 2's mast markers from the start ring (seed 3 measured 92 tags, 3 of them
