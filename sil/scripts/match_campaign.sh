@@ -5,7 +5,9 @@
 # Each run's report.json lands in OUT/WORLD-sSEED/; `python3 sil/scripts/match_campaign.py OUT`
 # aggregates them.
 #
-#   JOBS=2 sil/scripts/match_campaign.sh OUT [SECONDS] [DOWNSCALE] [SEED...]
+#   JOBS=2 ROCKS=12 sil/scripts/match_campaign.sh OUT [SECONDS] [DOWNSCALE] [SEED...]
+# ROCKS: rocks per 100 m² instead of the presets' (moon 1, mars 3.5): the thesis's matcher needs
+# obstacles, and its arena and Etna runs had many more than our open plains.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 out=${1:?output folder}
@@ -21,7 +23,8 @@ for world in mars moon; do
     for seed in "${seeds[@]}"; do
         dir="$out/$world-s$seed"
         ./target/release/sil mission --scenario "$world" --seed "$seed" --duration "$seconds" \
-            --downscale "$downscale" --evaluate-match-pairs --out "$dir" >"$dir.log" 2>&1 \
+            --downscale "$downscale" --evaluate-match-pairs ${ROCKS:+--rocks-per-100m2 "$ROCKS"} \
+            --out "$dir" >"$dir.log" 2>&1 \
             || echo "run $world $seed failed: see $dir.log" >&2 &
         running=$((running + 1))
         if [ "$running" -ge "${JOBS:-2}" ]; then

@@ -45,6 +45,9 @@ pub struct SimDriverConfig {
     /// 4 × the duration and cut, so a short run drives most of its time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pause_s: Option<f64>,
+    /// Rocks per 100 m² instead of the preset's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rocks_per_100m2: Option<f64>,
 }
 
 impl SimDriverConfig {
@@ -90,6 +93,7 @@ impl SimDriverConfig {
             downscale: self.downscale,
             world_size_m: None,
             flyer: false,
+            rocks_per_100m2: self.rocks_per_100m2,
         }
     }
 

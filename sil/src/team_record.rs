@@ -130,6 +130,7 @@ impl TeamRecordOptions {
             robots: self.robots as u16,
             downscale: self.downscale,
             pause_s: self.pause_s,
+            rocks_per_100m2: None,
         }
     }
 

@@ -62,11 +62,22 @@ pub struct ScenarioOptions {
     pub world_size_m: Option<f64>,
     /// Add one flyer to the team.
     pub flyer: bool,
+    /// Override the preset's rock density (rocks per 100 m²; the thesis's arena and Etna
+    /// boulder fields are denser than the presets' open plains).
+    pub rocks_per_100m2: Option<f64>,
 }
 
 impl Default for ScenarioOptions {
     fn default() -> Self {
-        ScenarioOptions { robots: 2, duration_s: 60.0, seed: 1, downscale: 1, world_size_m: None, flyer: false }
+        ScenarioOptions {
+            robots: 2,
+            duration_s: 60.0,
+            seed: 1,
+            downscale: 1,
+            world_size_m: None,
+            flyer: false,
+            rocks_per_100m2: None,
+        }
     }
 }
 
@@ -153,6 +164,9 @@ fn validate(options: &ScenarioOptions) -> Result<(), ScenarioError> {
     if !(options.duration_s.is_finite() && options.duration_s > 0.0) {
         return Err(ScenarioError::Invalid(format!("duration must be positive, got {} s", options.duration_s)));
     }
+    if options.rocks_per_100m2.is_some_and(|d| !(d.is_finite() && (0.0..=100.0).contains(&d))) {
+        return Err(ScenarioError::Invalid("rock density must be 0 to 100 per 100 m²".to_owned()));
+    }
     if options.downscale < 1 {
         return Err(ScenarioError::Invalid("downscale must be at least 1".to_owned()));
     }
@@ -183,6 +197,9 @@ pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, Scenari
     let mut terrain = site.terrain;
     if let Some(size) = options.world_size_m {
         terrain = terrain.with_size(size);
+    }
+    if let Some(density) = options.rocks_per_100m2 {
+        terrain.rocks_per_100m2 = density;
     }
     let half_extent = 0.5 * terrain.size_m[0].min(terrain.size_m[1]) - EDGE_MARGIN_M;
     let n = options.robots;

@@ -23,7 +23,15 @@ const SIM: &str = env!("CARGO_BIN_EXE_sim");
 const SEED: u64 = 7;
 
 fn options(seed: u64) -> ScenarioOptions {
-    ScenarioOptions { robots: 2, duration_s: 3.0, seed, downscale: 4, world_size_m: Some(60.0), flyer: false }
+    ScenarioOptions {
+        robots: 2,
+        duration_s: 3.0,
+        seed,
+        downscale: 4,
+        world_size_m: Some(60.0),
+        flyer: false,
+        rocks_per_100m2: None,
+    }
 }
 
 fn fresh_dir(name: &str) -> PathBuf {

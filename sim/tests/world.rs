@@ -16,7 +16,15 @@ use sim::terrain::Terrain;
 use sim::world::{MAX_TRAVERSABLE_ROCK_M, World, segment_distance};
 
 fn options(seed: u64, robots: usize, duration_s: f64, world_size_m: f64) -> ScenarioOptions {
-    ScenarioOptions { robots, duration_s, seed, downscale: 4, world_size_m: Some(world_size_m), flyer: false }
+    ScenarioOptions {
+        robots,
+        duration_s,
+        seed,
+        downscale: 4,
+        world_size_m: Some(world_size_m),
+        flyer: false,
+        rocks_per_100m2: None,
+    }
 }
 
 /// Sets robot `i`'s waypoints (x, y).

@@ -34,8 +34,15 @@ fn main() {
     let default_submaps = if full { 2 } else { 1 };
     let smoke_images: Option<u32> = (!full).then_some(4);
     let submaps_wanted: usize = std::env::var("SUBMAPS").ok().and_then(|s| s.parse().ok()).unwrap_or(default_submaps);
-    let options =
-        ScenarioOptions { robots: 1, duration_s: 600.0, seed: 3, downscale: 1, world_size_m: None, flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 600.0,
+        seed: 3,
+        downscale: 1,
+        world_size_m: None,
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let scenario = scenario::preset("moon", &options).expect("moon preset");
     let world: Arc<World> = World::build(&scenario).expect("world");
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).expect("source");

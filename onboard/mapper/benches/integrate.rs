@@ -23,8 +23,15 @@ const FRAME_PERIOD_S: f64 = 0.1;
 
 fn main() {
     let frames_wanted = 12;
-    let options =
-        ScenarioOptions { robots: 1, duration_s: 60.0, seed: 3, downscale: 1, world_size_m: None, flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 60.0,
+        seed: 3,
+        downscale: 1,
+        world_size_m: None,
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let mut scenario = scenario::preset("moon", &options).expect("moon preset");
     scenario.duration_s = 20.0;
     for robot in &mut scenario.robots {

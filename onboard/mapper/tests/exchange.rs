@@ -236,8 +236,15 @@ fn simulated_submap() -> Submap {
     use std::sync::Arc;
     use vision::depth::{DepthImage, StereoGeometry};
 
-    let options =
-        ScenarioOptions { robots: 1, duration_s: 20.0, seed: 5, downscale: 2, world_size_m: None, flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 20.0,
+        seed: 5,
+        downscale: 2,
+        world_size_m: None,
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let scenario = scenario::preset("moon", &options).expect("moon preset");
     let world = World::build(&scenario).expect("world");
     let mut source = SimSensorSource::new(Arc::clone(&world), 0).expect("source");

@@ -248,7 +248,15 @@ struct SimFrames {
 
 /// True depth (and left image) of `count` stereo frames, every `every`-th from `from_s` on.
 fn sim_frames(seed: u64, downscale: u32, from_s: f64, every: u64, count: usize) -> SimFrames {
-    let options = ScenarioOptions { robots: 1, duration_s: 60.0, seed, downscale, world_size_m: None, flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 60.0,
+        seed,
+        downscale,
+        world_size_m: None,
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let mut scenario = scenario::preset("moon", &options).unwrap();
     scenario.duration_s = from_s + (count as f64 + 1.0) * every as f64 * 0.1 + 1.0;
     for robot in &mut scenario.robots {
@@ -414,6 +422,7 @@ fn drive(policy: SubmapPolicy, duration_s: f64) -> DriveResult {
         downscale: 8,
         world_size_m: None,
         flyer: false,
+        rocks_per_100m2: None,
     };
     let mut scenario = scenario::preset("moon", &options).unwrap();
     scenario.duration_s = duration_s;

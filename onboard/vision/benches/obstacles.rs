@@ -24,8 +24,15 @@ fn thread_cpu_ns() -> Option<u64> {
 }
 
 fn main() {
-    let options =
-        ScenarioOptions { robots: 1, duration_s: 30.0, seed: 3, downscale: 1, world_size_m: Some(60.0), flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 30.0,
+        seed: 3,
+        downscale: 1,
+        world_size_m: Some(60.0),
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let mut scenario = preset("moon", &options).unwrap();
     scenario.camera_rate_hz = 2.0;
     let world: Arc<World> = World::build(&scenario).unwrap();

@@ -32,8 +32,15 @@ fn percentile_ms(sorted: &[f64], p: f64) -> f64 {
 }
 
 fn main() {
-    let options =
-        ScenarioOptions { robots: 1, duration_s: 30.0, seed: 3, downscale: 1, world_size_m: Some(60.0), flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 30.0,
+        seed: 3,
+        downscale: 1,
+        world_size_m: Some(60.0),
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let mut scenario = preset("moon", &options).unwrap();
     scenario.robots[0].pan_sweep_rad = 0.0;
     let world: Arc<World> = World::build(&scenario).unwrap();

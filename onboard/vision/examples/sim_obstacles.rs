@@ -166,8 +166,15 @@ impl Truth {
 
 /// The Moon preset's world for `seed` on a square of `size_m`.
 pub fn moon_world(seed: u64, size_m: f64) -> std::sync::Arc<World> {
-    let options =
-        ScenarioOptions { robots: 1, duration_s: 20.0, seed, downscale: 1, world_size_m: Some(size_m), flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s: 20.0,
+        seed,
+        downscale: 1,
+        world_size_m: Some(size_m),
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     World::build(&preset("moon", &options).unwrap()).unwrap()
 }
 

@@ -242,8 +242,15 @@ struct SimRun {
 /// One rover of the Moon preset at half resolution; `pan_sweep` keeps or removes the head's look
 /// around while standing.
 fn run_sim(duration_s: f64, pan_sweep: bool) -> SimRun {
-    let options =
-        ScenarioOptions { robots: 1, duration_s, seed: 3, downscale: 2, world_size_m: Some(60.0), flyer: false };
+    let options = ScenarioOptions {
+        robots: 1,
+        duration_s,
+        seed: 3,
+        downscale: 2,
+        world_size_m: Some(60.0),
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let mut scenario = preset("moon", &options).unwrap();
     if !pan_sweep {
         scenario.robots[0].pan_sweep_rad = 0.0;

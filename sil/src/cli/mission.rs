@@ -36,6 +36,7 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
   --evaluate-match-pairs after a lockstep mission, match every truly overlapping pair of the
                          first robot's suitable submaps in 4d and 6d (its final estimate as the
                          prior) and score them in the report
+  --rocks-per-100m2 N    rock density of the site instead of the preset's (moon 1, mars 3.5)
   --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
                          ground truth with the thesis's noise models: a TEST-ONLY source for
                          comparisons, next to the robots' own detections; reports say so;
@@ -126,6 +127,13 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             Long("truth-loop-closures") => options.truth_loop_closures = true,
             Long("compare-match-modes") => options.compare_match_modes = true,
             Long("evaluate-match-pairs") => options.evaluate_match_pairs = true,
+            Long("rocks-per-100m2") => {
+                let v = text(&mut parser, "--rocks-per-100m2")?;
+                options.rocks_per_100m2 = match v.parse::<f64>() {
+                    Ok(d) if d.is_finite() && (0.0..=100.0).contains(&d) => Some(d),
+                    _ => return Err(format!("--rocks-per-100m2: expected 0 to 100, got {v:?}")),
+                };
+            }
             Long("matching") => {
                 matching = Some(match text(&mut parser, "--matching")?.as_str() {
                     "off" => None,

@@ -73,6 +73,8 @@ pub struct MissionOptions {
     /// Lockstep runner: after the mission, every pair of suitable submaps that truly overlaps is
     /// matched in 4D and 6D with the first robot's final estimate as the prior, and scored.
     pub evaluate_match_pairs: bool,
+    /// Rocks per 100 m² instead of the scenario preset's.
+    pub rocks_per_100m2: Option<f64>,
     /// The ground station's UDP address; `None`: an in-process stand-in acknowledges the
     /// robots' ground links. Either way the ground traffic is recorded in `out/ground_feed.log`.
     pub feed: Option<SocketAddr>,
@@ -105,6 +107,7 @@ impl Default for MissionOptions {
             matching: Some(onboard::config::MatchModeConfig::FourD),
             compare_match_modes: false,
             evaluate_match_pairs: false,
+            rocks_per_100m2: None,
             feed: None,
             ground_key: None,
             ground_link: crate::relay::GroundLinkEmulation::default(),

@@ -19,6 +19,7 @@ pub fn sim_driver_config(options: &MissionOptions) -> SimDriverConfig {
         robots: options.robots as u16,
         downscale: options.downscale,
         pause_s: None,
+        rocks_per_100m2: options.rocks_per_100m2,
     }
 }
 

@@ -259,8 +259,15 @@ pub struct SimFrame {
 /// cameras placed around the rovers at 2.5–12 m, looking at their masts (markers in view), and
 /// `terrain_views` frames looking away over the terrain (no rover in view: textured ground only).
 pub fn sim_frames(seed: u64, views: usize, terrain_views: usize) -> Vec<SimFrame> {
-    let options =
-        ScenarioOptions { robots: 3, duration_s: 20.0, seed, downscale: 1, world_size_m: Some(60.0), flyer: false };
+    let options = ScenarioOptions {
+        robots: 3,
+        duration_s: 20.0,
+        seed,
+        downscale: 1,
+        world_size_m: Some(60.0),
+        flyer: false,
+        rocks_per_100m2: None,
+    };
     let scenario = preset("moon", &options).unwrap();
     let world: Arc<World> = World::build(&scenario).unwrap();
     let camera = world.robots[0].model().camera;
