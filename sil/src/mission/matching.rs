@@ -316,8 +316,13 @@ fn yaw_rad(t: &Isometry3<f64>) -> f64 {
 
 /// Every pair of suitable submaps one robot's matcher holds whose obstacle keypoints truly
 /// overlap by more than `min_overlap_m2` in xy, matched in 4D and in 6D with the robot's final
-/// graph estimate as the prior and Δσ = sqrt(Σ_a + Σ_b) from its marginals (the pairing's
-/// precision cut, ownership and the ledger left aside): per-match accuracy on the same pairs.
+/// graph estimate as the prior and Δσ = sqrt(Σ_a + Σ_b) from its marginals, at least
+/// [`EVALUATION_MIN_DELTA_SIGMA_M`] per axis (the pairing's precision cut, ownership and the
+/// ledger left aside): per-match accuracy of the matcher itself on the same pairs. The floor
+/// keeps the 2·Δσ gate to gross errors: the robots' detections make the final estimates
+/// centimetre-precise, and the thesis's gate would then reject every match that is merely
+/// less precise than the estimate (the pairing never queues such pairs).
+pub const EVALUATION_MIN_DELTA_SIGMA_M: f64 = 0.5;
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct PairEvaluation {
     /// Pairs with a true overlap; of these, those both placed in the robot's graph were matched.
@@ -386,7 +391,8 @@ impl PairEvaluation {
                 );
                 let prior = RelativePrior {
                     t_target_source: pa.t_global_submap.inverse() * pb.t_global_submap,
-                    delta_sigma_m: delta_sigma_in_frame(&sigma_global, &pa.t_global_submap),
+                    delta_sigma_m: delta_sigma_in_frame(&sigma_global, &pa.t_global_submap)
+                        .map(|s| s.max(EVALUATION_MIN_DELTA_SIGMA_M)),
                 };
                 pairs.push((pair, prior));
             }
