@@ -32,6 +32,8 @@
 //! [`covariance::from_filter`] converts (trap 6). Stamps are `u64` nanoseconds of the team's
 //! synchronized clock (thesis §4.3.2 assumes synchronized clocks).
 
+mod clique;
+pub mod consistency;
 pub mod covariance;
 mod estimate;
 mod graph;
@@ -39,9 +41,11 @@ mod ids;
 mod ledger;
 pub mod markers;
 mod measurements;
+mod odometry_paths;
 mod pose_buffer;
 mod sequential;
 
+pub use consistency::{ClosureKey, ClosureStatus, ConsistencyCheck, ConsistencyStats, PcmParams};
 pub use estimate::{GraphSize, RobotStatus, TeamEstimate};
 pub use graph::{InsertOutcome, SlamError, TeamGraph, TeamGraphConfig, Topology};
 pub use ids::{NodeId, PoseId, RobotId, SubmapId, SubmapPair};
