@@ -7,7 +7,7 @@
 use std::ffi::OsString;
 use std::process::ExitCode;
 
-use onboard::config::MarkerModelConfig;
+use onboard::config::{InterRobotConsistency, MarkerModelConfig};
 
 use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
 
@@ -33,6 +33,13 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
                          ground truth with the thesis's noise models: a TEST-ONLY source for
                          comparisons, next to the robots' own detections; reports say so;
                          lockstep runner only
+  --wrong-closure-fraction F
+                         with --truth-loop-closures: replace the fraction F (0 to 1) of the
+                         inter-robot closures by confidently wrong ones (1-10 m, random yaw, the
+                         genuine covariance); the report counts what the graphs let in
+  --consistency C        the robots' screening of inter-robot closures: none (the thesis's
+                         Cauchy kernel only) or pcm (pairwise consistency maximization first);
+                         default: the configuration's
   --feed ADDR            the ground station's UDP address (e.g. 127.0.0.1:7700): the robots' ground
                          links (telemetry v2, poses, constraints, submaps) go there from one socket,
                          and what it sends back (acks, commands) reaches the addressed robot;
@@ -116,6 +123,20 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                 };
             }
             Long("truth-loop-closures") => options.truth_loop_closures = true,
+            Long("wrong-closure-fraction") => {
+                let v = text(&mut parser, "--wrong-closure-fraction")?;
+                options.wrong_closure_fraction = match v.parse::<f64>() {
+                    Ok(f) if (0.0..=1.0).contains(&f) => f,
+                    _ => return Err(format!("--wrong-closure-fraction: expected 0 to 1, got {v:?}")),
+                };
+            }
+            Long("consistency") => {
+                options.consistency = match text(&mut parser, "--consistency")?.as_str() {
+                    "none" => InterRobotConsistency::None,
+                    "pcm" => InterRobotConsistency::Pcm,
+                    other => return Err(format!("--consistency: expected none or pcm, got {other:?}")),
+                };
+            }
             Long("markers") => {
                 options.markers = match text(&mut parser, "--markers")?.as_str() {
                     "off" => None,
@@ -171,6 +192,9 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
         return Err(
             "--truth-loop-closures needs --runner lockstep (the test-only source reads the lockstep world)".into()
         );
+    }
+    if options.wrong_closure_fraction > 0.0 && !options.truth_loop_closures {
+        return Err("--wrong-closure-fraction needs --truth-loop-closures".to_owned());
     }
     if !options.faults.is_empty() && options.runner != Runner::Process {
         return Err("--kill needs --runner process".to_owned());

@@ -49,6 +49,7 @@ pub fn robot_config(options: &MissionOptions, world: &World, robot: usize) -> Re
         }
         Some(_) => {}
     }
+    config.mapper.inter_robot_consistency = options.consistency;
     if let Some(distance_m) = options.submap_max_distance_m {
         config.mapper.submap_max_distance_m = distance_m;
     }
