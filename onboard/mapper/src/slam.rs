@@ -14,6 +14,10 @@
 //! | [`SubmapMatch`] | factor `s → s` (Cauchy) |
 //! | [`MatchAttempt`] | the team-wide [`MatchLedger`] (every pair tried at most once) |
 //!
+//! Beyond the thesis, inter-robot closures (detections between two robots, matches between two
+//! robots' submaps) can be screened by pairwise consistency maximization before they enter the
+//! graph ([`ConsistencyCheck::Pcm`], module [`consistency`]; off by default, the thesis's graph).
+//!
 //! Two topologies ([`Topology`]): the thesis's local-reference topology, where robot poses hang
 //! off the submap origin they were estimated in and are never chained (so data can be inserted at
 //! any time), and, for comparison, the sequential-odometry topology it improves on (robot poses
