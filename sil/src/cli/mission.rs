@@ -250,6 +250,22 @@ mod tests {
         }
     }
 
+    #[test]
+    fn outlier_experiment_options_reach_the_mission_options() {
+        let args = ["--truth-loop-closures", "--wrong-closure-fraction", "0.2", "--consistency", "pcm"];
+        let (options, _) = parse_args(args.iter().map(OsString::from).collect()).unwrap().unwrap();
+        assert_eq!(options.wrong_closure_fraction, 0.2);
+        assert_eq!(options.consistency, InterRobotConsistency::Pcm);
+        let bad: [&[&str]; 3] = [
+            &["--wrong-closure-fraction", "0.2"],
+            &["--truth-loop-closures", "--wrong-closure-fraction", "1.5"],
+            &["--consistency", "ransac"],
+        ];
+        for bad in bad {
+            assert!(parse_args(bad.iter().map(OsString::from).collect()).is_err(), "{bad:?}");
+        }
+    }
+
     proptest! {
         #[test]
         fn any_outage_text_parses_or_is_refused(text in "\\PC{0,24}") {
