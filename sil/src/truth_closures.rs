@@ -7,10 +7,21 @@
 //! submap pairs its own graph's ledger says are open and its own (issue-9 rule), inter-robot
 //! pairs only once both robots are connected in its graph. What it finds goes into its mapper as
 //! an own measurement, and from there to the team like any other constraint.
+//!
+//! The outlier experiment ([`TruthLoopClosures::with_wrong_closures`]) replaces a fraction of the
+//! inter-robot closures by confidently wrong ones: the true relative pose moved by 1–10 m in a
+//! random horizontal direction and turned by a random yaw, reported with the genuine one's
+//! covariance. Which closures are wrong is drawn per closure identity from the mission seed, so
+//! a closure is wrong or not whatever else happened in the mission.
 
+use std::collections::BTreeSet;
+use std::f64::consts::{PI, TAU};
 use std::sync::Arc;
 
-use mapper::slam::{AttemptOutcome, MatchAttempt, Measurement, RobotDetection, SubmapId, SubmapMatch};
+use mapper::slam::{
+    AttemptOutcome, ClosureKey, MatchAttempt, Measurement, RobotDetection, SubmapId, SubmapMatch, SubmapPair,
+};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use sim::truth_constraints::{SubmapSpan, TruthConstraintConfig, TruthConstraints, TruthDetection};
 use sim::world::World;
 
@@ -21,6 +32,10 @@ use crate::mission::MissionError;
 use crate::mission::world::robot_id;
 
 const MATCH_PERIOD_NS: u64 = 10_000_000_000;
+/// The random stream of the wrong-closure draws (`sim::rng::stream` path head).
+const WRONG_CLOSURE_STREAM: u64 = 0x0bad_c105;
+/// Wrong closures are off by this much translation (m), uniformly.
+const WRONG_TRANSLATION_M: (f64, f64) = (1.0, 10.0);
 
 /// The ground-truth constraint source of a lockstep mission.
 #[derive(Debug)]
@@ -33,6 +48,13 @@ pub struct TruthLoopClosures {
     pub detections: u64,
     pub match_attempts: u64,
     pub matches: u64,
+    /// Inter-robot closures handed to the mappers (genuine and wrong).
+    pub inter_robot_closures: u64,
+    /// Fraction of inter-robot closures made wrong, and the seed of the draws.
+    wrong_fraction: f64,
+    wrong_seed: u64,
+    /// The closures made wrong.
+    pub wrong: BTreeSet<ClosureKey>,
 }
 
 impl TruthLoopClosures {
@@ -45,7 +67,55 @@ impl TruthLoopClosures {
             detections: 0,
             match_attempts: 0,
             matches: 0,
+            inter_robot_closures: 0,
+            wrong_fraction: 0.0,
+            wrong_seed: 0,
+            wrong: BTreeSet::new(),
         }
+    }
+
+    /// Replace `fraction` (0..=1) of the inter-robot closures by wrong ones, drawn from `seed`.
+    pub fn with_wrong_closures(mut self, fraction: f64, seed: u64) -> TruthLoopClosures {
+        self.wrong_fraction = fraction.clamp(0.0, 1.0);
+        self.wrong_seed = seed;
+        self
+    }
+
+    /// `t_a_b` of an inter-robot closure as handed out: the measurement, or a wrong one.
+    fn maybe_wrong(&mut self, key: ClosureKey, t_a_b: Isometry3<f64>) -> Isometry3<f64> {
+        self.inter_robot_closures += 1;
+        if self.wrong_fraction <= 0.0 {
+            return t_a_b;
+        }
+        let path = match key {
+            ClosureKey::Detection { observer, observed, stamp_ns, tag_id } => {
+                [WRONG_CLOSURE_STREAM, 0, u64::from(observer), u64::from(observed), stamp_ns, u64::from(tag_id)]
+            }
+            ClosureKey::Match(pair) => {
+                let (a, b) = (pair.first(), pair.second());
+                [
+                    WRONG_CLOSURE_STREAM,
+                    1,
+                    u64::from(a.robot),
+                    u64::from(a.index),
+                    u64::from(b.robot),
+                    u64::from(b.index),
+                ]
+            }
+        };
+        let mut rng = sim::rng::stream(self.wrong_seed, &path);
+        if rng.uniform() >= self.wrong_fraction {
+            return t_a_b;
+        }
+        let distance_m = rng.range(WRONG_TRANSLATION_M.0, WRONG_TRANSLATION_M.1);
+        let heading_rad = rng.range(0.0, TAU);
+        let yaw_rad = rng.range(-PI, PI);
+        self.wrong.insert(key);
+        let offset = Isometry3::from_parts(
+            Translation3::new(distance_m * heading_rad.cos(), distance_m * heading_rad.sin(), 0.0),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_rad),
+        );
+        t_a_b * offset
     }
 
     pub fn on_initialized(&mut self, robot: usize, stamp_ns: u64) {
@@ -81,7 +151,16 @@ impl TruthLoopClosures {
         }
         for d in self.truth.detections_at(robot, stamp_ns) {
             self.detections += 1;
-            let detection = detection_measurement(&d, robot_id);
+            let mut detection = detection_measurement(&d, robot_id);
+            if detection.observer != detection.observed {
+                let key = ClosureKey::Detection {
+                    observer: detection.observer,
+                    observed: detection.observed,
+                    stamp_ns: detection.stamp_ns,
+                    tag_id: detection.tag_id,
+                };
+                detection.t_observer_observed = self.maybe_wrong(key, detection.t_observer_observed);
+            }
             mapper
                 .insert_measurement(&Measurement::Detection(detection), out)
                 .map_err(|e| MissionError::Node(format!("robot {robot}"), e))?;
@@ -132,7 +211,12 @@ impl TruthLoopClosures {
                 .map_err(node)?;
             if let Some(m) = result {
                 self.matches += 1;
-                let factor = SubmapMatch { a, b, t_a_b: m.t_a_b, covariance: m.covariance };
+                let t_a_b = if a.robot == b.robot {
+                    m.t_a_b
+                } else {
+                    self.maybe_wrong(ClosureKey::Match(SubmapPair::new(a, b)), m.t_a_b)
+                };
+                let factor = SubmapMatch { a, b, t_a_b, covariance: m.covariance };
                 mapper.insert_measurement(&Measurement::Match(factor), out).map_err(node)?;
             }
         }

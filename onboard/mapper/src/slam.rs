@@ -14,6 +14,10 @@
 //! | [`SubmapMatch`] | factor `s → s` (Cauchy) |
 //! | [`MatchAttempt`] | the team-wide [`MatchLedger`] (every pair tried at most once) |
 //!
+//! Beyond the thesis, inter-robot closures (detections between two robots, matches between two
+//! robots' submaps) can be screened by pairwise consistency maximization before they enter the
+//! graph ([`ConsistencyCheck::Pcm`], module [`consistency`]; off by default, the thesis's graph).
+//!
 //! Two topologies ([`Topology`]): the thesis's local-reference topology, where robot poses hang
 //! off the submap origin they were estimated in and are never chained (so data can be inserted at
 //! any time), and, for comparison, the sequential-odometry topology it improves on (robot poses
@@ -32,6 +36,8 @@
 //! [`covariance::from_filter`] converts (trap 6). Stamps are `u64` nanoseconds of the team's
 //! synchronized clock (thesis §4.3.2 assumes synchronized clocks).
 
+mod clique;
+pub mod consistency;
 pub mod covariance;
 mod estimate;
 mod graph;
@@ -39,9 +45,11 @@ mod ids;
 mod ledger;
 pub mod markers;
 mod measurements;
+mod odometry_paths;
 mod pose_buffer;
 mod sequential;
 
+pub use consistency::{ClosureKey, ClosureStatus, ConsistencyCheck, ConsistencyStats, PcmParams};
 pub use estimate::{GraphSize, RobotStatus, TeamEstimate};
 pub use graph::{InsertOutcome, SlamError, TeamGraph, TeamGraphConfig, Topology};
 pub use ids::{NodeId, PoseId, RobotId, SubmapId, SubmapPair};

@@ -467,6 +467,28 @@ pub struct MapperConfig {
     /// disparity error is `k` times more depth error, so `k` times the limit keeps the range).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_depth_error_m: Option<f64>,
+    /// Screening of inter-robot loop closures before they enter the pose graph
+    /// (`mapper::slam::ConsistencyCheck`): `none` (the thesis: Cauchy kernel only) or `pcm`
+    /// (pairwise consistency maximization with its default parameters, then the kernel).
+    pub inter_robot_consistency: InterRobotConsistency,
+}
+
+/// `[mapper] inter_robot_consistency`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum InterRobotConsistency {
+    #[default]
+    None,
+    Pcm,
+}
+
+impl InterRobotConsistency {
+    pub fn check(self) -> mapper::slam::ConsistencyCheck {
+        match self {
+            InterRobotConsistency::None => mapper::slam::ConsistencyCheck::None,
+            InterRobotConsistency::Pcm => mapper::slam::ConsistencyCheck::Pcm(mapper::slam::PcmParams::default()),
+        }
+    }
 }
 
 impl Default for MapperConfig {
@@ -478,6 +500,7 @@ impl Default for MapperConfig {
             point_voxel_m: 0.05,
             octree_voxel_m: 0.1,
             max_depth_error_m: None,
+            inter_robot_consistency: InterRobotConsistency::default(),
         }
     }
 }

@@ -128,6 +128,7 @@ pub fn mapper_config(config: &RoverConfig, rectified: StereoCalibration) -> Mapp
     if let Some(limit_m) = config.mapper.max_depth_error_m {
         mapper.integrator.max_depth_error_m = limit_m;
     }
+    mapper.graph.consistency = config.mapper.inter_robot_consistency.check();
     mapper.markers = team_markers(config);
     mapper.marker_min_interval_ns = (config.markers.min_interval_s * 1e9) as u64;
     mapper.marker_max_distance_m = config.markers.max_distance_m;

@@ -7,7 +7,7 @@
 use std::ffi::OsString;
 use std::process::ExitCode;
 
-use onboard::config::{MarkerModelConfig, MatchModeConfig};
+use onboard::config::{InterRobotConsistency, MarkerModelConfig, MatchModeConfig};
 
 use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
 
@@ -41,6 +41,13 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
                          ground truth with the thesis's noise models: a TEST-ONLY source for
                          comparisons, next to the robots' own detections; reports say so;
                          lockstep runner only
+  --wrong-closure-fraction F
+                         with --truth-loop-closures: replace the fraction F (0 to 1) of the
+                         inter-robot closures by confidently wrong ones (1-10 m, random yaw, the
+                         genuine covariance); the report counts what the graphs let in
+  --consistency C        the robots' screening of inter-robot closures: none (the thesis's
+                         Cauchy kernel only) or pcm (pairwise consistency maximization first);
+                         default: the configuration's
   --feed ADDR            the ground station's UDP address (e.g. 127.0.0.1:7700): the robots' ground
                          links (telemetry v2, poses, constraints, submaps) go there from one socket,
                          and what it sends back (acks, commands) reaches the addressed robot;
@@ -142,6 +149,20 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                     other => return Err(format!("--matching: expected 4d, 6d or off, got {other:?}")),
                 });
             }
+            Long("wrong-closure-fraction") => {
+                let v = text(&mut parser, "--wrong-closure-fraction")?;
+                options.wrong_closure_fraction = match v.parse::<f64>() {
+                    Ok(f) if (0.0..=1.0).contains(&f) => f,
+                    _ => return Err(format!("--wrong-closure-fraction: expected 0 to 1, got {v:?}")),
+                };
+            }
+            Long("consistency") => {
+                options.consistency = match text(&mut parser, "--consistency")?.as_str() {
+                    "none" => InterRobotConsistency::None,
+                    "pcm" => InterRobotConsistency::Pcm,
+                    other => return Err(format!("--consistency: expected none or pcm, got {other:?}")),
+                };
+            }
             Long("markers") => {
                 options.markers = match text(&mut parser, "--markers")?.as_str() {
                     "off" => None,
@@ -204,6 +225,9 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             "--truth-loop-closures needs --runner lockstep (the test-only source reads the lockstep world)".into()
         );
     }
+    if options.wrong_closure_fraction > 0.0 && !options.truth_loop_closures {
+        return Err("--wrong-closure-fraction needs --truth-loop-closures".to_owned());
+    }
     if !options.faults.is_empty() && options.runner != Runner::Process {
         return Err("--kill needs --runner process".to_owned());
     }
@@ -254,6 +278,22 @@ mod tests {
         assert_eq!(options.ground_link.loss, 0.2);
         assert_eq!(options.ground_link.outages_ms, vec![(10_000, 20_000)]);
         for bad in [["--ground-loss", "1.0"], ["--ground-loss", "-0.1"], ["--ground-outage", "5"]] {
+            assert!(parse_args(bad.iter().map(OsString::from).collect()).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn outlier_experiment_options_reach_the_mission_options() {
+        let args = ["--truth-loop-closures", "--wrong-closure-fraction", "0.2", "--consistency", "pcm"];
+        let (options, _) = parse_args(args.iter().map(OsString::from).collect()).unwrap().unwrap();
+        assert_eq!(options.wrong_closure_fraction, 0.2);
+        assert_eq!(options.consistency, InterRobotConsistency::Pcm);
+        let bad: [&[&str]; 3] = [
+            &["--wrong-closure-fraction", "0.2"],
+            &["--truth-loop-closures", "--wrong-closure-fraction", "1.5"],
+            &["--consistency", "ransac"],
+        ];
+        for bad in bad {
             assert!(parse_args(bad.iter().map(OsString::from).collect()).is_err(), "{bad:?}");
         }
     }

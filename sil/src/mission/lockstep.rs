@@ -29,6 +29,7 @@ use sim::driver::SimSensorSource;
 use sim::world::World;
 
 use super::report::{MissionReport, ProcessReport, RobotReport};
+use super::screening::ClosureScreening;
 use super::world::{
     inter_robot_errors, marker_model_name, mission_world, robot_config, robot_id, truth_at_captures, truth_in_own_frame,
 };
@@ -162,7 +163,9 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     let nodes: Vec<NodeId> = (0..options.robots).map(|r| NodeId(robot_id(r) as u8)).collect();
     let mut ground = GroundEnd::new(options.feed, &nodes, Some(&out.join(GROUND_FEED_LOG)))
         .map_err(|e| MissionError::Setup(e.to_string()))?;
-    let mut truth = options.truth_loop_closures.then(|| TruthLoopClosures::new(&world, options.robots));
+    let mut truth = options.truth_loop_closures.then(|| {
+        TruthLoopClosures::new(&world, options.robots).with_wrong_closures(options.wrong_closure_fraction, options.seed)
+    });
     if truth.is_some() {
         for r in &mut robots {
             r.stack.bus.tap(&[Topic::FrameSwitch]);
@@ -320,6 +323,16 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         _ => None,
     };
     ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
+    let closure_screening = truth.as_ref().map(|truth| ClosureScreening {
+        consistency: format!("{:?}", options.consistency).to_lowercase(),
+        wrong_fraction: options.wrong_closure_fraction,
+        inter_robot_closures: truth.inter_robot_closures,
+        injected_wrong: truth.wrong.len() as u64,
+        robots: robots
+            .iter()
+            .map(|r| ClosureScreening::robot(robot_id(r.robot), r.stack.mapper.graph(), &truth.wrong))
+            .collect(),
+    });
     let report = MissionReport {
         runner: "lockstep".to_owned(),
         scenario: options.scenario.clone(),
@@ -327,6 +340,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         duration_s: options.duration_s,
         wall_s: wall.elapsed().as_secs_f64(),
         truth_loop_closures: options.truth_loop_closures,
+        closure_screening,
         marker_model: marker_model_name(options),
         robots: robot_reports,
         processes,

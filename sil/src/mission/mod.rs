@@ -8,6 +8,7 @@ pub mod matching;
 pub mod process;
 pub mod report;
 pub mod score;
+pub mod screening;
 pub mod world;
 
 pub use report::{MissionReport, ProcessReport, RobotReport, TeamScore};
@@ -62,6 +63,11 @@ pub struct MissionOptions {
     pub radio: RadioPreset,
     /// Loop closures from the simulator's ground truth (test-only source; reported as such).
     pub truth_loop_closures: bool,
+    /// Fraction of the truth source's inter-robot closures replaced by confidently wrong ones
+    /// (the outlier experiment; needs `truth_loop_closures`).
+    pub wrong_closure_fraction: f64,
+    /// The robots' screening of inter-robot closures (`[mapper] inter_robot_consistency`).
+    pub consistency: onboard::config::InterRobotConsistency,
     /// The robots' marker detector and its uncertainty model; `None`: no detector (the
     /// simulator's cameras have tables for the `lut` models at every downscale).
     pub markers: Option<onboard::config::MarkerModelConfig>,
@@ -103,6 +109,8 @@ impl Default for MissionOptions {
             runner: Runner::Lockstep,
             radio: RadioPreset::SerialRadio,
             truth_loop_closures: false,
+            wrong_closure_fraction: 0.0,
+            consistency: onboard::config::InterRobotConsistency::default(),
             markers: Some(onboard::config::MarkerModelConfig::LutOnline),
             matching: Some(onboard::config::MatchModeConfig::FourD),
             compare_match_modes: false,

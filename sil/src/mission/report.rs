@@ -81,6 +81,8 @@ pub struct MissionReport {
     pub truth_loop_closures: bool,
     /// The marker uncertainty model of the robots' detector; `None`: no detector ran.
     pub marker_model: Option<String>,
+    /// The outlier experiment's screening counts (lockstep runner with truth closures).
+    pub closure_screening: Option<super::screening::ClosureScreening>,
     pub robots: Vec<RobotReport>,
     pub processes: Vec<ProcessReport>,
     /// The first robot's truly overlapping submap pairs matched in 4D and 6D (`evaluate_match_pairs`).
@@ -232,6 +234,7 @@ impl MissionReport {
             "truth_loop_closures": self.truth_loop_closures,
             "marker_model": self.marker_model,
             "loop_closure_sources": self.loop_closure_sources(),
+            "closure_screening": self.closure_screening.as_ref().map(super::screening::ClosureScreening::to_json),
             "distance_m": team.map(|t| t.distance_m),
             "mean_error_m": team.map(|t| t.mean_error_m),
             "rmse_m": team.map(|t| t.rmse_m),
@@ -263,6 +266,9 @@ impl MissionReport {
             let _ = writeln!(out, "LOOP CLOSURES FROM GROUND TRUTH (sim::truth_constraints, test-only)");
         }
         let _ = writeln!(out, "{}", self.loop_closure_line());
+        if let Some(screening) = &self.closure_screening {
+            let _ = writeln!(out, "{}", screening.line());
+        }
         let _ = writeln!(
             out,
             "robot  distance  mean err  rmse     max err  final err  final %  graph (nodes/factors)  connected  submaps  imu lost"
@@ -345,6 +351,9 @@ impl MissionReport {
             );
         }
         let _ = writeln!(out, "{}.\n", self.loop_closure_line());
+        if let Some(screening) = &self.closure_screening {
+            let _ = writeln!(out, "{}.\n", screening.line());
+        }
         out.push_str("## Online trajectory errors (thesis ch. 8: the estimate as the robot had it)\n\n");
         out.push_str("| robot | distance | mean | RMSE | max | final | final % | graph nodes / factors | connected | submaps finished / received | IMU lost |\n");
         out.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");

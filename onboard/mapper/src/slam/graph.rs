@@ -11,12 +11,14 @@ use std::collections::BTreeMap;
 use nalgebra::{Isometry3, Matrix6};
 use posegraph::{Factor, GraphError, Isam, IsamParams, Key, LmParams, NoiseModel, RobustKernel, UpdateStats, Values};
 
+use super::consistency::{self, ClosureKey, ClosureStatus, ConsistencyCheck, ConsistencyStats, Pcm};
 use super::covariance;
 use super::ids::{NodeId, PoseId, RobotId, SubmapId};
 use super::ledger::MatchLedger;
 use super::measurements::{
     FilterPose, LandmarkObservation, MatchAttempt, Measurement, RobotDetection, SubmapMatch, SubmapSwitch,
 };
+use super::odometry_paths::OdometryPaths;
 use super::pose_buffer::PoseBuffer;
 use super::sequential::{Chain, ChainError};
 
@@ -48,6 +50,8 @@ pub struct TeamGraphConfig {
     /// Interpolation of buffered filter poses (see [`PoseBuffer::lookup`]).
     pub pose_max_gap_ns: u64,
     pub isam: IsamParams,
+    /// Screening of inter-robot loop closures before they enter the graph (beyond the thesis).
+    pub consistency: ConsistencyCheck,
 }
 
 impl Default for TeamGraphConfig {
@@ -61,6 +65,7 @@ impl Default for TeamGraphConfig {
             // GTSAM's 0.1 leaves robust-kernel weights and loop-closure linearizations stale by
             // centimetres at thesis graph sizes; 0.01 costs little with fewer than 200 nodes.
             isam: IsamParams { relinearize_threshold: 0.01, ..IsamParams::default() },
+            consistency: ConsistencyCheck::None,
         }
     }
 }
@@ -143,12 +148,21 @@ pub struct TeamGraph {
     held_switches: BTreeMap<SubmapId, SubmapSwitch>,
     online: Vec<(u64, Isometry3<f64>)>,
     pub(crate) dropped_out_of_order: usize,
+    /// Inter-robot closure screening (`None`: [`ConsistencyCheck::None`]).
+    pcm: Option<Pcm>,
+    /// A screened closure already in the optimizer left its accepted set: rebuild before the
+    /// next update.
+    rebuild_pending: bool,
 }
 
 impl TeamGraph {
     /// The graph of robot `own`: its first submap origin is the frame's origin.
     pub fn new(own: RobotId, config: TeamGraphConfig) -> Self {
         let isam = Isam::new(config.isam.clone());
+        let pcm = match config.consistency {
+            ConsistencyCheck::None => None,
+            ConsistencyCheck::Pcm(params) => Some(Pcm::new(params)),
+        };
         let mut graph = TeamGraph {
             own,
             config,
@@ -171,6 +185,8 @@ impl TeamGraph {
             held_switches: BTreeMap::new(),
             online: Vec::new(),
             dropped_out_of_order: 0,
+            pcm,
+            rebuild_pending: false,
         };
         let origin = NodeId::Submap(SubmapId::new(own, 0));
         graph.submaps.insert(SubmapId::new(own, 0), ());
@@ -239,6 +255,9 @@ impl TeamGraph {
             return InsertOutcome::Duplicate;
         }
         self.switches.insert(switch.to(), *switch);
+        if let Some(pcm) = &mut self.pcm {
+            pcm.odometry_changed(switch.robot);
+        }
         self.submaps.insert(switch.from(), ());
         self.submaps.insert(switch.to(), ());
         let covariance = self.filter_covariance(&switch.covariance);
@@ -338,7 +357,8 @@ impl TeamGraph {
         });
         self.submaps.insert(m.a, ());
         self.submaps.insert(m.b, ());
-        self.push_factor(FactorClass::Match, NodeId::Submap(m.a), NodeId::Submap(m.b), m.t_a_b, m.covariance);
+        let key = ClosureKey::Match(pair);
+        self.push_closure(key, FactorClass::Match, NodeId::Submap(m.a), NodeId::Submap(m.b), m.t_a_b, m.covariance);
         InsertOutcome::Added
     }
 
@@ -350,6 +370,11 @@ impl TeamGraph {
     /// Moves every factor connected to the own frame into the optimizer and runs one incremental
     /// step. Returns `None` if nothing new was connected.
     pub fn update(&mut self) -> Result<Option<UpdateStats>, SlamError> {
+        self.screen_closures();
+        let rebuilding = self.rebuild_pending;
+        if rebuilding {
+            self.reset_optimizer();
+        }
         let (new_values, ready) = self.connect_waiting();
         if ready.is_empty() {
             return Ok(None);
@@ -358,8 +383,14 @@ impl TeamGraph {
         for &i in &ready {
             new_factors.push(self.optimizer_factor(&self.factors[i], &new_values)?);
         }
-        let values: Vec<(Key, Isometry3<f64>)> = new_values.iter().map(|(_, key, pose)| (*key, *pose)).collect();
+        let mut values: Vec<(Key, Isometry3<f64>)> = new_values.iter().map(|(_, key, pose)| (*key, *pose)).collect();
+        if rebuilding {
+            // The chained initial values are odometry only; one incremental step from there
+            // would leave the loops open, so the rebuilt graph starts from a converged batch.
+            converge(&new_factors, &mut values);
+        }
         let stats = self.isam.update(new_factors, &values)?;
+        self.rebuild_pending = false;
         // Committed only now, so a failed update leaves the graph as it was.
         for (node, key, _) in &new_values {
             self.keys.insert(*node, *key);
@@ -370,6 +401,49 @@ impl TeamGraph {
         }
         self.waiting.retain(|i| !self.factors[*i].inserted);
         Ok(Some(stats))
+    }
+
+    /// Runs the consistency check: accepted closures start waiting for the optimizer, withdrawn
+    /// ones stop waiting or, if the optimizer holds them already, mark it for a rebuild.
+    fn screen_closures(&mut self) {
+        let Some(pcm) = &mut self.pcm else {
+            return;
+        };
+        let paths = OdometryPaths {
+            switches: &self.switches,
+            poses: &self.pose_nodes,
+            min_variance: self.config.min_filter_variance,
+        };
+        let decision = pcm.evaluate(&paths);
+        for i in decision.withdraw {
+            if self.factors[i].inserted {
+                self.rebuild_pending = true;
+            }
+            self.waiting.retain(|&w| w != i);
+        }
+        self.waiting.extend(decision.accept);
+    }
+
+    /// Empties the optimizer; every factor not held back by the consistency check waits again.
+    fn reset_optimizer(&mut self) {
+        self.isam = Isam::new(self.config.isam.clone());
+        self.keys.clear();
+        self.key_nodes.clear();
+        for f in &mut self.factors {
+            f.inserted = false;
+        }
+        let held = |i: usize| self.pcm.as_ref().is_some_and(|p| p.is_held(i));
+        self.waiting = (0..self.factors.len()).filter(|&i| !held(i)).collect();
+    }
+
+    /// Counts of the inter-robot closure screening; `None` without one.
+    pub fn consistency_stats(&self) -> Option<ConsistencyStats> {
+        self.pcm.as_ref().map(Pcm::stats)
+    }
+
+    /// Every screened inter-robot closure and whether it is accepted (empty without screening).
+    pub fn screened_closures(&self) -> Vec<ClosureStatus> {
+        self.pcm.as_ref().map(Pcm::closures).unwrap_or_default()
     }
 
     /// The current estimate of a node in the own frame, if it is connected.
@@ -472,6 +546,26 @@ impl TeamGraph {
         self.waiting.push(self.factors.len() - 1);
     }
 
+    /// An inter-robot loop closure goes to the consistency check, which lets it wait for the
+    /// optimizer once accepted; everything else waits at once.
+    fn push_closure(
+        &mut self,
+        key: ClosureKey,
+        class: FactorClass,
+        from: NodeId,
+        to: NodeId,
+        measured: Isometry3<f64>,
+        covariance: Matrix6<f64>,
+    ) {
+        match &mut self.pcm {
+            Some(pcm) if consistency::is_inter_robot(from, to) => {
+                self.factors.push(KnownFactor { class, from, to, measured, covariance, inserted: false });
+                pcm.add(key, self.factors.len() - 1, from, to, measured, covariance);
+            }
+            _ => self.push_factor(class, from, to, measured, covariance),
+        }
+    }
+
     /// A robot-pose node from a filter pose, with its `v` factor (local reference) or its place in
     /// the robot's chain (sequential). False if the sequential chain cannot take it.
     fn ensure_pose_node(&mut self, pose: &FilterPose) -> bool {
@@ -538,7 +632,13 @@ impl TeamGraph {
         }
         let from = NodeId::Pose(PoseId { robot: d.observer, stamp_ns: d.stamp_ns });
         let to = NodeId::Pose(PoseId { robot: d.observed, stamp_ns: d.stamp_ns });
-        self.push_factor(FactorClass::Detection, from, to, d.t_observer_observed, d.covariance);
+        let closure = ClosureKey::Detection {
+            observer: d.observer,
+            observed: d.observed,
+            stamp_ns: d.stamp_ns,
+            tag_id: d.tag_id,
+        };
+        self.push_closure(closure, FactorClass::Detection, from, to, d.t_observer_observed, d.covariance);
         true
     }
 
@@ -643,5 +743,24 @@ impl TeamGraph {
         } else {
             Factor::between(from, key_of(&f.to)?, f.measured, noise)
         })
+    }
+}
+
+/// Levenberg–Marquardt to convergence over `factors` from `values`, in place; on failure the
+/// values stay as they were (the incremental solver then starts from them).
+fn converge(factors: &[Factor], values: &mut [(Key, Isometry3<f64>)]) {
+    let mut all = Values::new();
+    for (key, pose) in values.iter() {
+        if all.insert(*key, *pose).is_err() {
+            return;
+        }
+    }
+    if posegraph::optimize(factors, &mut all, &LmParams::default()).is_err() {
+        return;
+    }
+    for (key, pose) in values.iter_mut() {
+        if let Some(p) = all.get(*key) {
+            *pose = *p;
+        }
     }
 }
