@@ -212,11 +212,11 @@ impl Pcm {
                     now[i] = true;
                 }
             }
-            for i in 0..n {
-                match (pair.accepted[i], now[i]) {
-                    (false, true) => decision.accept.push(pair.closures[i].factor),
+            for ((closure, &was), &is) in pair.closures.iter().zip(&pair.accepted).zip(&now) {
+                match (was, is) {
+                    (false, true) => decision.accept.push(closure.factor),
                     (true, false) => {
-                        decision.withdraw.push(pair.closures[i].factor);
+                        decision.withdraw.push(closure.factor);
                         self.withdrawn += 1;
                     }
                     _ => {}
