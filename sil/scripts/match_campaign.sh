@@ -23,7 +23,7 @@ for world in mars moon; do
     for seed in "${seeds[@]}"; do
         dir="$out/$world-s$seed"
         ./target/release/sil mission --scenario "$world" --seed "$seed" --duration "$seconds" \
-            --downscale "$downscale" --evaluate-match-pairs ${ROCKS:+--rocks-per-100m2 "$ROCKS"} \
+            --downscale "$downscale" --evaluate-match-pairs --rocks-in-hub ${ROCKS:+--rocks-per-100m2 "$ROCKS"} \
             --out "$dir" >"$dir.log" 2>&1 \
             || echo "run $world $seed failed: see $dir.log" >&2 &
         running=$((running + 1))

@@ -48,6 +48,9 @@ pub struct SimDriverConfig {
     /// Rocks per 100 m² instead of the preset's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rocks_per_100m2: Option<f64>,
+    /// Rocks in the routes' shared hub too (see `ScenarioOptions::rocks_in_hub`).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub rocks_in_hub: bool,
 }
 
 impl SimDriverConfig {
@@ -94,6 +97,7 @@ impl SimDriverConfig {
             world_size_m: None,
             flyer: false,
             rocks_per_100m2: self.rocks_per_100m2,
+            rocks_in_hub: self.rocks_in_hub,
         }
     }
 

@@ -131,6 +131,7 @@ impl TeamRecordOptions {
             downscale: self.downscale,
             pause_s: self.pause_s,
             rocks_per_100m2: None,
+            rocks_in_hub: false,
         }
     }
 

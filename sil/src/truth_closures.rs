@@ -55,6 +55,8 @@ pub struct TruthLoopClosures {
     wrong_seed: u64,
     /// The closures made wrong.
     pub wrong: BTreeSet<ClosureKey>,
+    /// Hand out no detection of another robot (robots running alone).
+    intra_robot_only: bool,
 }
 
 impl TruthLoopClosures {
@@ -71,7 +73,15 @@ impl TruthLoopClosures {
             wrong_fraction: 0.0,
             wrong_seed: 0,
             wrong: BTreeSet::new(),
+            intra_robot_only: false,
         }
+    }
+
+    /// With `alone`, no detection of another robot is handed out (the matches are intra-robot
+    /// anyway when no robot hears another).
+    pub fn intra_robot_only(mut self, alone: bool) -> TruthLoopClosures {
+        self.intra_robot_only = alone;
+        self
     }
 
     /// Replace `fraction` (0..=1) of the inter-robot closures by wrong ones, drawn from `seed`.
@@ -150,8 +160,11 @@ impl TruthLoopClosures {
             return Ok(());
         }
         for d in self.truth.detections_at(robot, stamp_ns) {
-            self.detections += 1;
             let mut detection = detection_measurement(&d, robot_id);
+            if self.intra_robot_only && detection.observer != detection.observed {
+                continue;
+            }
+            self.detections += 1;
             if detection.observer != detection.observed {
                 let key = ClosureKey::Detection {
                     observer: detection.observer,

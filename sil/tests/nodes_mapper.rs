@@ -54,6 +54,7 @@ fn world(robots: usize, duration_s: f64, seed: u64) -> Arc<World> {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = scenario::preset("moon", &options).unwrap();
     scenario.duration_s = duration_s;

@@ -76,6 +76,7 @@ fn robots_that_never_meet_stay_unconnected() {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = scenario::preset("moon", &scenario_options).unwrap();
     scenario.duration_s = options.duration_s;

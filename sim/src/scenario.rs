@@ -32,6 +32,8 @@ pub const MAX_ROBOTS: usize = 32;
 pub const START_SPACING_M: f64 = 3.0;
 /// The start ring's smallest radius.
 const MIN_RING_RADIUS_M: f64 = 3.0;
+/// Radius kept clear of rocks around each start with [`ScenarioOptions::rocks_in_hub`].
+const START_CLEAR_RADIUS_M: f64 = 1.5;
 /// Paths keep this far inside the terrain's edge.
 pub const EDGE_MARGIN_M: f64 = 3.0;
 /// Smallest terrain edge a preset accepts.
@@ -65,6 +67,10 @@ pub struct ScenarioOptions {
     /// Override the preset's rock density (rocks per 100 m²; the thesis's arena and Etna
     /// boulder fields are denser than the presets' open plains).
     pub rocks_per_100m2: Option<f64>,
+    /// Let the rock field cover the shared hub of the routes too (only a disc around each start
+    /// and the ground station stays clear). The presets keep the hub bare so that the robots
+    /// see each other from the start; the submap matcher needs rocks where the routes overlap.
+    pub rocks_in_hub: bool,
 }
 
 impl Default for ScenarioOptions {
@@ -77,6 +83,7 @@ impl Default for ScenarioOptions {
             world_size_m: None,
             flyer: false,
             rocks_per_100m2: None,
+            rocks_in_hub: false,
         }
     }
 }
@@ -212,8 +219,12 @@ pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, Scenari
             2.0 * (ring + 4.0 + EDGE_MARGIN_M)
         )));
     }
-    terrain =
-        terrain.with_clear_area([0.0, 0.0], ring + 2.5).with_clear_area([ground_station[0], ground_station[1]], 2.0);
+    terrain = if options.rocks_in_hub {
+        (0..n).fold(terrain, |t, i| t.with_clear_area(start_position_m(i, n), START_CLEAR_RADIUS_M))
+    } else {
+        terrain.with_clear_area([0.0, 0.0], ring + 2.5)
+    };
+    terrain = terrain.with_clear_area([ground_station[0], ground_station[1]], 2.0);
     if options.flyer {
         terrain = terrain.with_clear_area(flyer_start, 2.0);
     }
@@ -360,6 +371,29 @@ mod tests {
             ScenarioOptions { world_size_m: Some(5.0), ..ok.clone() },
         ] {
             assert!(matches!(preset("mars", &bad), Err(ScenarioError::Invalid(_))), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn rocks_in_hub_fill_the_hub_and_spare_the_starts() {
+        let options = ScenarioOptions { world_size_m: Some(30.0), rocks_per_100m2: Some(12.0), ..Default::default() };
+        let hub_radius = ring_radius_m(options.robots) + 2.5;
+        let rocks_within = |scenario: &Scenario, centre: [f64; 2], radius: f64| {
+            let terrain = crate::terrain::Terrain::generate(&scenario.terrain, scenario.seed);
+            terrain
+                .rocks
+                .iter()
+                .filter(|r| (r.base_m.x - centre[0]).hypot(r.base_m.y - centre[1]) < radius + r.radius_m)
+                .count()
+        };
+        let bare = preset("mars", &options).unwrap();
+        assert_eq!(rocks_within(&bare, [0.0, 0.0], hub_radius), 0);
+        let rocky = preset("mars", &ScenarioOptions { rocks_in_hub: true, ..options.clone() }).unwrap();
+        let in_hub = rocks_within(&rocky, [0.0, 0.0], hub_radius);
+        // 12 per 100 m² over the hub's ~100 m², less the starts' discs.
+        assert!(in_hub >= 5, "{in_hub} rocks in the hub");
+        for i in 0..options.robots {
+            assert_eq!(rocks_within(&rocky, start_position_m(i, options.robots), START_CLEAR_RADIUS_M), 0);
         }
     }
 

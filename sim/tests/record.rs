@@ -31,6 +31,7 @@ fn options(seed: u64) -> ScenarioOptions {
         world_size_m: Some(60.0),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     }
 }
 

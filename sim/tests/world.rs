@@ -24,6 +24,7 @@ fn options(seed: u64, robots: usize, duration_s: f64, world_size_m: f64) -> Scen
         world_size_m: Some(world_size_m),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     }
 }
 

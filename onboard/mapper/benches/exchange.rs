@@ -42,6 +42,7 @@ fn main() {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let scenario = scenario::preset("moon", &options).expect("moon preset");
     let world: Arc<World> = World::build(&scenario).expect("world");

@@ -31,6 +31,7 @@ fn main() {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = scenario::preset("moon", &options).expect("moon preset");
     scenario.duration_s = 20.0;

@@ -244,6 +244,7 @@ fn simulated_submap() -> Submap {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let scenario = scenario::preset("moon", &options).expect("moon preset");
     let world = World::build(&scenario).expect("world");

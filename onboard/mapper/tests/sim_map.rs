@@ -43,6 +43,7 @@ fn map_along_truth(seed: u64, duration_s: f64) -> Measured {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = scenario::preset("moon", &options).unwrap();
     for robot in &mut scenario.robots {

@@ -256,6 +256,7 @@ fn sim_frames(seed: u64, downscale: u32, from_s: f64, every: u64, count: usize) 
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = scenario::preset("moon", &options).unwrap();
     scenario.duration_s = from_s + (count as f64 + 1.0) * every as f64 * 0.1 + 1.0;
@@ -423,6 +424,7 @@ fn drive(policy: SubmapPolicy, duration_s: f64) -> DriveResult {
         world_size_m: None,
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = scenario::preset("moon", &options).unwrap();
     scenario.duration_s = duration_s;

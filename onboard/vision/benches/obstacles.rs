@@ -32,6 +32,7 @@ fn main() {
         world_size_m: Some(60.0),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = preset("moon", &options).unwrap();
     scenario.camera_rate_hz = 2.0;

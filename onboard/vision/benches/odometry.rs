@@ -40,6 +40,7 @@ fn main() {
         world_size_m: Some(60.0),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = preset("moon", &options).unwrap();
     scenario.robots[0].pan_sweep_rad = 0.0;

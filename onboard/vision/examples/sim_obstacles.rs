@@ -174,6 +174,7 @@ pub fn moon_world(seed: u64, size_m: f64) -> std::sync::Arc<World> {
         world_size_m: Some(size_m),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     World::build(&preset("moon", &options).unwrap()).unwrap()
 }

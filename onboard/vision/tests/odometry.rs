@@ -250,6 +250,7 @@ fn run_sim(duration_s: f64, pan_sweep: bool) -> SimRun {
         world_size_m: Some(60.0),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let mut scenario = preset("moon", &options).unwrap();
     if !pan_sweep {

@@ -37,6 +37,10 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
                          first robot's suitable submaps in 4d and 6d (its final estimate as the
                          prior) and score them in the report
   --rocks-per-100m2 N    rock density of the site instead of the preset's (moon 1, mars 3.5)
+  --rocks-in-hub         rocks in the routes' shared hub too (the presets keep it bare; the
+                         submap matcher needs obstacles where the robots' paths overlap)
+  --solo                 no radio between the robots: each runs single-robot SLAM on the same
+                         route (the baseline the team's errors are compared with); lockstep only
   --truth-loop-closures  loop closures (robot detections, submap matches) from the simulator's
                          ground truth with the thesis's noise models: a TEST-ONLY source for
                          comparisons, next to the robots' own detections; reports say so;
@@ -134,6 +138,8 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             Long("truth-loop-closures") => options.truth_loop_closures = true,
             Long("compare-match-modes") => options.compare_match_modes = true,
             Long("evaluate-match-pairs") => options.evaluate_match_pairs = true,
+            Long("rocks-in-hub") => options.rocks_in_hub = true,
+            Long("solo") => options.solo = true,
             Long("rocks-per-100m2") => {
                 let v = text(&mut parser, "--rocks-per-100m2")?;
                 options.rocks_per_100m2 = match v.parse::<f64>() {
@@ -224,6 +230,9 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
         return Err(
             "--truth-loop-closures needs --runner lockstep (the test-only source reads the lockstep world)".into()
         );
+    }
+    if options.solo && options.runner == Runner::Process {
+        return Err("--solo needs --runner lockstep (the process runner's robots share one radio)".to_owned());
     }
     if options.wrong_closure_fraction > 0.0 && !options.truth_loop_closures {
         return Err("--wrong-closure-fraction needs --truth-loop-closures".to_owned());

@@ -80,7 +80,7 @@ pub fn robot_stack(
         .map_err(|e| MissionError::World(format!("robot {robot} sensors: {e}")))?;
     let radio = radio_config(options.radio);
     let mut links = Vec::new();
-    for peer in (0..options.robots).filter(|&p| p != robot) {
+    for peer in (0..options.robots).filter(|&p| p != robot && !options.solo) {
         let peer_id = RobotId(robot_id(peer) as u8);
         links.push(LinkConfig::team(
             LinkId(1 + peer as u8),
@@ -154,7 +154,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         (0..options.robots).map(|r| robot_stack(&world, r, options, out)).collect::<Result<Vec<_>, _>>()?;
     let radio = radio_config(options.radio);
     let mut radios: BTreeMap<(usize, usize), DuplexEmulator> = BTreeMap::new();
-    for a in 0..options.robots {
+    for a in (0..options.robots).filter(|_| !options.solo) {
         for b in a + 1..options.robots {
             let seed = options.seed.wrapping_mul(1_000_003).wrapping_add((a * 64 + b) as u64);
             radios.insert((a, b), DuplexEmulator::symmetric(radio.clone().with_seed(seed)));
@@ -164,7 +164,9 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     let mut ground = GroundEnd::new(options.feed, &nodes, Some(&out.join(GROUND_FEED_LOG)))
         .map_err(|e| MissionError::Setup(e.to_string()))?;
     let mut truth = options.truth_loop_closures.then(|| {
-        TruthLoopClosures::new(&world, options.robots).with_wrong_closures(options.wrong_closure_fraction, options.seed)
+        TruthLoopClosures::new(&world, options.robots)
+            .with_wrong_closures(options.wrong_closure_fraction, options.seed)
+            .intra_robot_only(options.solo)
     });
     if truth.is_some() {
         for r in &mut robots {
@@ -340,6 +342,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         duration_s: options.duration_s,
         wall_s: wall.elapsed().as_secs_f64(),
         truth_loop_closures: options.truth_loop_closures,
+        solo: options.solo,
         closure_screening,
         marker_model: marker_model_name(options),
         robots: robot_reports,

@@ -81,6 +81,11 @@ pub struct MissionOptions {
     pub evaluate_match_pairs: bool,
     /// Rocks per 100 m² instead of the scenario preset's.
     pub rocks_per_100m2: Option<f64>,
+    /// Rocks in the routes' shared hub too (only the starts stay clear).
+    pub rocks_in_hub: bool,
+    /// Lockstep runner: no radio between the robots and no inter-robot truth closures, so each
+    /// robot runs single-robot SLAM on the same route (the baseline of thesis Tab. 8.9).
+    pub solo: bool,
     /// The ground station's UDP address; `None`: an in-process stand-in acknowledges the
     /// robots' ground links. Either way the ground traffic is recorded in `out/ground_feed.log`.
     pub feed: Option<SocketAddr>,
@@ -116,6 +121,8 @@ impl Default for MissionOptions {
             compare_match_modes: false,
             evaluate_match_pairs: false,
             rocks_per_100m2: None,
+            rocks_in_hub: false,
+            solo: false,
             feed: None,
             ground_key: None,
             ground_link: crate::relay::GroundLinkEmulation::default(),

@@ -380,6 +380,7 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         duration_s: options.duration_s,
         wall_s: wall.elapsed().as_secs_f64(),
         truth_loop_closures: options.truth_loop_closures,
+        solo: options.solo,
         closure_screening: None,
         marker_model: marker_model_name(options),
         robots,

@@ -79,6 +79,8 @@ pub struct MissionReport {
     /// Loop closures came from the simulator's ground truth (test-only source), not from the
     /// robots' own detector and matcher.
     pub truth_loop_closures: bool,
+    /// The robots ran alone (`--solo`): no radio between them.
+    pub solo: bool,
     /// The marker uncertainty model of the robots' detector; `None`: no detector ran.
     pub marker_model: Option<String>,
     /// The outlier experiment's screening counts (lockstep runner with truth closures).
@@ -232,6 +234,7 @@ impl MissionReport {
             "duration_s": self.duration_s,
             "wall_s": self.wall_s,
             "truth_loop_closures": self.truth_loop_closures,
+            "solo": self.solo,
             "marker_model": self.marker_model,
             "loop_closure_sources": self.loop_closure_sources(),
             "closure_screening": self.closure_screening.as_ref().map(super::screening::ClosureScreening::to_json),
@@ -264,6 +267,9 @@ impl MissionReport {
         );
         if self.truth_loop_closures {
             let _ = writeln!(out, "LOOP CLOSURES FROM GROUND TRUTH (sim::truth_constraints, test-only)");
+        }
+        if self.solo {
+            let _ = writeln!(out, "robots alone (--solo): no radio between them, single-robot SLAM each");
         }
         let _ = writeln!(out, "{}", self.loop_closure_line());
         if let Some(screening) = &self.closure_screening {

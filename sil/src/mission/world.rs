@@ -20,6 +20,7 @@ pub fn sim_driver_config(options: &MissionOptions) -> SimDriverConfig {
         downscale: options.downscale,
         pause_s: None,
         rocks_per_100m2: options.rocks_per_100m2,
+        rocks_in_hub: options.rocks_in_hub,
     }
 }
 

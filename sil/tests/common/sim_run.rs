@@ -28,7 +28,15 @@ pub struct SimWorld {
 /// first stand must stay ≥ 0.5 s for the at-rest initialization); the preset plans its route
 /// for 6 s stands, so a short run is planned over `4 × duration_s` and cut, to drive most of it.
 pub fn moon_world(seed: u64, duration_s: f64, downscale: u32, pause_s: Option<f64>) -> SimWorld {
-    let sim = SimDriverConfig { scenario: "moon".into(), seed, robots: 1, downscale, pause_s, rocks_per_100m2: None };
+    let sim = SimDriverConfig {
+        scenario: "moon".into(),
+        seed,
+        robots: 1,
+        downscale,
+        pause_s,
+        rocks_per_100m2: None,
+        rocks_in_hub: false,
+    };
     SimWorld { world: sim.world(duration_s).expect("world"), sim, duration_s }
 }
 

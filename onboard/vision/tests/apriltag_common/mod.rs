@@ -267,6 +267,7 @@ pub fn sim_frames(seed: u64, views: usize, terrain_views: usize) -> Vec<SimFrame
         world_size_m: Some(60.0),
         flyer: false,
         rocks_per_100m2: None,
+        rocks_in_hub: false,
     };
     let scenario = preset("moon", &options).unwrap();
     let world: Arc<World> = World::build(&scenario).unwrap();
