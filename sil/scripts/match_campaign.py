@@ -6,7 +6,7 @@
 Reads OUT/*/report.json. Per world: the robots' live matchers (attempts, accepted, false
 positives) and the pair evaluation (every truly overlapping pair matched in 4D and 6D with the
 same prior): accepted, false positives, translation and yaw error of the accepted matches
-against the truth, and the mean NEES of their covariances (3 position + 1 yaw = 4 DoF in 4D;
+against the truth, and the mean NEES of their covariances (6 DoF, consistent covariances give 6;
 the thesis's 4D-vs-6D count comparison is on the same pairs).
 """
 import json
@@ -61,7 +61,7 @@ def main():
         report = json.loads(path.read_text())
         reports.setdefault(report["scenario"], []).append(report)
     print("| world | mode | pairs matched | accepted | false positives | translation error median / p90 "
-          "| yaw error median / p90 | NEES mean | time per pair | rejections |")
+          "| yaw error median / p90 | NEES mean (6 DoF) | time per pair | rejections |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for world, runs in sorted(reports.items()):
         runs = [r for r in runs if r.get("pair_evaluation")]
@@ -70,9 +70,9 @@ def main():
         for key in ("4d", "6d"):
             print(mode_row(label, runs, key))
     print()
-    print("| world | seed | overlapping pairs | submaps (suitable / checked) | live attempts | live accepted "
+    print("| world | seed | overlapping pairs | sharing ≥ 10 keypoints | submaps (suitable / checked) | live attempts | live accepted "
           "| live false positives | team mean error |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for world, runs in sorted(reports.items()):
         for r in sorted(runs, key=lambda r: r["seed"]):
             live = [x["matching"] for x in r["robots"] if x.get("matching")]
@@ -81,6 +81,7 @@ def main():
             evaluation = r.get("pair_evaluation") or {}
             print(
                 f"| {world} | {r['seed']} | {evaluation.get('overlapping_pairs', '–')} "
+                f"| {evaluation.get('sharing_pairs', '–')} "
                 f"| {checked - unsuitable} / {checked} | {sum(m['attempts'] for m in live)} "
                 f"| {sum(m['accepted'] for m in live)} | {sum(m['false_positives'] for m in live)} "
                 f"| {r['mean_error_m']:.3f} m |"

@@ -306,9 +306,10 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             processes.push(ProcessReport::lockstep(robot_id(robot), name, *seconds));
         }
     }
-    let pair_evaluation = match robots.first_mut() {
-        Some(first) if options.evaluate_match_pairs => {
-            let marginals = first
+    let pair_evaluation = if options.evaluate_match_pairs {
+        let mut marginals = Vec::new();
+        for r in &mut robots {
+            let m: BTreeMap<_, _> = r
                 .stack
                 .mapper
                 .submap_marginals()
@@ -316,13 +317,22 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
                 .into_iter()
                 .map(|(id, m)| (id, m.fixed_view::<3, 3>(0, 0).into_owned()))
                 .collect();
-            let mapper = &first.stack.mapper;
-            mapper.matcher().map(|m| {
-                let min_overlap_m2 = m.config().pairing.min_overlap_m2;
-                super::matching::PairEvaluation::run(m, mapper.graph(), &marginals, min_overlap_m2, &true_origin)
-            })
+            marginals.push(m);
         }
-        _ => None,
+        let views: Vec<_> = robots
+            .iter()
+            .zip(marginals)
+            .filter_map(|(r, marginals)| {
+                let mapper = &r.stack.mapper;
+                Some(super::matching::RobotView { scheduler: mapper.matcher()?, graph: mapper.graph(), marginals })
+            })
+            .collect();
+        views.first().map(|first| {
+            let min_overlap_m2 = first.scheduler.config().pairing.min_overlap_m2;
+            super::matching::PairEvaluation::run(&views, min_overlap_m2, &true_origin)
+        })
+    } else {
+        None
     };
     ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
     let closure_screening = truth.as_ref().map(|truth| ClosureScreening {

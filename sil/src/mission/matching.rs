@@ -12,7 +12,10 @@
 
 use std::collections::BTreeMap;
 
-use mapper::matching::RelativePrior;
+use std::collections::BTreeSet;
+use std::sync::Arc;
+
+use mapper::matching::{PreparedCloud, RelativePrior};
 use mapper::pairing::{PlacedSubmap, delta_sigma_in_frame, delta_sigma_m, global_position_variance_m2, xy_bounds};
 use mapper::scheduler::{AttemptRecord, MatchScheduler};
 use mapper::slam::{SubmapId, SubmapPair, TeamGraph};
@@ -92,12 +95,12 @@ impl OtherMode {
             .iter()
             .map(|r| (r.pair, RelativePrior { t_target_source: r.prior_t_a_b, delta_sigma_m: r.delta_sigma_m }))
             .collect();
-        Self::match_pairs(scheduler, &pairs, params, mode, true_origin)
+        Self::match_pairs(&|id| scheduler.prepared(id).cloned(), &pairs, params, mode, true_origin)
     }
 
     /// Matches `pairs` (target = first, source = second) with their priors.
     pub fn match_pairs(
-        scheduler: &MatchScheduler,
+        prepared: &dyn Fn(SubmapId) -> Option<Arc<PreparedCloud>>,
         pairs: &[(SubmapPair, RelativePrior)],
         params: &mapper::matching::MatcherParams,
         mode: &str,
@@ -105,11 +108,10 @@ impl OtherMode {
     ) -> OtherMode {
         let mut other = OtherMode { mode: mode.to_owned(), ..OtherMode::default() };
         for (pair, prior) in pairs {
-            let (Some(target), Some(source)) = (scheduler.prepared(pair.first()), scheduler.prepared(pair.second()))
-            else {
+            let (Some(target), Some(source)) = (prepared(pair.first()), prepared(pair.second())) else {
                 continue;
             };
-            let report = mapper::matching::match_clouds(source, target, Some(prior), params);
+            let report = mapper::matching::match_clouds(&source, &target, Some(prior), params);
             other.attempts += 1;
             other.total_s += report.times.total_s;
             let result = match &report.outcome {
@@ -314,19 +316,53 @@ fn yaw_rad(t: &Isometry3<f64>) -> f64 {
     r[(1, 0)].atan2(r[(0, 0)])
 }
 
-/// Every pair of suitable submaps one robot's matcher holds whose obstacle keypoints truly
-/// overlap by more than `min_overlap_m2` in xy, matched in 4D and in 6D with the robot's final
-/// graph estimate as the prior and Δσ = sqrt(Σ_a + Σ_b) from its marginals, at least
-/// [`EVALUATION_MIN_DELTA_SIGMA_M`] per axis (the pairing's precision cut, ownership and the
-/// ledger left aside): per-match accuracy of the matcher itself on the same pairs. The floor
-/// keeps the 2·Δσ gate to gross errors: the robots' detections make the final estimates
-/// centimetre-precise, and the thesis's gate would then reject every match that is merely
-/// less precise than the estimate (the pairing never queues such pairs).
+/// Every pair of suitable submaps the robots' matchers hold whose obstacle keypoints truly
+/// overlap by more than `min_overlap_m2` in xy and that share at least
+/// [`EVALUATION_MIN_SHARED_KEYPOINTS`] keypoints under the truth, matched in 4D and in 6D with the final graph
+/// estimate of the first robot that places both as the prior and Δσ = sqrt(Σ_a + Σ_b) from its
+/// marginals, at least [`EVALUATION_MIN_DELTA_SIGMA_M`] per axis (the pairing's precision cut,
+/// ownership, the ledger and whether the clouds were exchanged left aside): per-match accuracy
+/// of the matcher itself on the same pairs. The floor keeps the 2·Δσ gate to gross errors: the
+/// robots' detections make the final estimates centimetre-precise, and the thesis's gate would
+/// then reject every match that is merely less precise than the estimate (the pairing never
+/// queues such pairs).
 pub const EVALUATION_MIN_DELTA_SIGMA_M: f64 = 0.5;
+
+/// Keypoints of one submap that must lie within [`SHARED_KEYPOINT_RADIUS_M`] of the other's under
+/// the true relative pose for a pair to be evaluated: overlapping boxes are not enough, the two
+/// submaps must have seen the same obstacles (the thesis's descriptiveness minimum, 10).
+pub const EVALUATION_MIN_SHARED_KEYPOINTS: usize = 10;
+/// Twice the keypoint voxel (0.1 m): the same obstacle seen from two places.
+pub const SHARED_KEYPOINT_RADIUS_M: f64 = 0.2;
+
+/// Keypoints of `b` that lie within [`SHARED_KEYPOINT_RADIUS_M`] of a keypoint of `a` under
+/// `t_a_b` (brute force: a few hundred keypoints per submap).
+pub fn shared_keypoints(a: &[nalgebra::Point3<f32>], b: &[nalgebra::Point3<f32>], t_a_b: &Isometry3<f64>) -> usize {
+    let r2 = SHARED_KEYPOINT_RADIUS_M * SHARED_KEYPOINT_RADIUS_M;
+    b.iter()
+        .filter(|p| {
+            let q = t_a_b * p.cast::<f64>();
+            a.iter().any(|k| (k.cast::<f64>() - q).norm_squared() < r2)
+        })
+        .count()
+}
+
+/// What the pair evaluation reads of one robot at the end of a mission.
+#[derive(Debug)]
+pub struct RobotView<'a> {
+    pub scheduler: &'a MatchScheduler,
+    pub graph: &'a TeamGraph,
+    /// Position marginals of the submap origins in the robot's global frame.
+    pub marginals: BTreeMap<SubmapId, Matrix3<f64>>,
+}
+
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct PairEvaluation {
-    /// Pairs with a true overlap; of these, those both placed in the robot's graph were matched.
+    /// Pairs whose keypoint boxes truly overlap by more than the pairing's minimum.
     pub overlapping: usize,
+    /// Of these, pairs sharing at least [`EVALUATION_MIN_SHARED_KEYPOINTS`] keypoints under the
+    /// truth; those both placed in a robot's graph were matched.
+    pub sharing: usize,
     pub unplaced: usize,
     pub four_d: OtherMode,
     pub six_d: OtherMode,
@@ -334,13 +370,16 @@ pub struct PairEvaluation {
 
 impl PairEvaluation {
     pub fn run(
-        scheduler: &MatchScheduler,
-        graph: &TeamGraph,
-        marginals: &BTreeMap<SubmapId, Matrix3<f64>>,
+        views: &[RobotView<'_>],
         min_overlap_m2: f64,
         true_origin: &dyn Fn(SubmapId) -> Option<Isometry3<f64>>,
     ) -> PairEvaluation {
-        let ids: Vec<SubmapId> = scheduler.prepared_ids().collect();
+        let Some(first) = views.first() else {
+            return PairEvaluation::default();
+        };
+        let prepared = |id: SubmapId| views.iter().find_map(|v| v.scheduler.prepared(id).cloned());
+        let ids: BTreeSet<SubmapId> = views.iter().flat_map(|v| v.scheduler.prepared_ids()).collect();
+        let ids: Vec<SubmapId> = ids.into_iter().collect();
         let mut evaluation = PairEvaluation::default();
         let mut pairs = Vec::new();
         for (i, &a) in ids.iter().enumerate() {
@@ -350,7 +389,7 @@ impl PairEvaluation {
                     continue;
                 }
                 let (Some(prep_a), Some(prep_b), Some(true_a), Some(true_b)) =
-                    (scheduler.prepared(a), scheduler.prepared(b), true_origin(a), true_origin(b))
+                    (prepared(a), prepared(b), true_origin(a), true_origin(b))
                 else {
                     continue;
                 };
@@ -372,15 +411,20 @@ impl PairEvaluation {
                     continue;
                 }
                 evaluation.overlapping += 1;
-                let placed = |id| {
+                let t_a_b = true_a.inverse() * true_b;
+                if shared_keypoints(prep_a.keypoints(), prep_b.keypoints(), &t_a_b) < EVALUATION_MIN_SHARED_KEYPOINTS {
+                    continue;
+                }
+                evaluation.sharing += 1;
+                let placed = |view: &RobotView<'_>, id| {
                     Some(PlacedSubmap {
                         id,
-                        t_global_submap: graph.node_pose(mapper::slam::NodeId::Submap(id))?,
-                        position_covariance_m2: *marginals.get(&id)?,
+                        t_global_submap: view.graph.node_pose(mapper::slam::NodeId::Submap(id))?,
+                        position_covariance_m2: *view.marginals.get(&id)?,
                         keypoints: &[],
                     })
                 };
-                let (Some(pa), Some(pb)) = (placed(a), placed(b)) else {
+                let Some((pa, pb)) = views.iter().find_map(|v| Some((placed(v, a)?, placed(v, b)?))) else {
                     evaluation.unplaced += 1;
                     continue;
                 };
@@ -397,11 +441,11 @@ impl PairEvaluation {
                 pairs.push((pair, prior));
             }
         }
-        let base = scheduler.config().matcher.clone();
+        let base = first.scheduler.config().matcher.clone();
         let four = mapper::matching::MatcherParams { mode: mapper::matching::MatchMode::FourDof, ..base.clone() };
         let six = mapper::matching::MatcherParams { mode: mapper::matching::MatchMode::SixDof, ..base };
-        evaluation.four_d = OtherMode::match_pairs(scheduler, &pairs, &four, "4d", true_origin);
-        evaluation.six_d = OtherMode::match_pairs(scheduler, &pairs, &six, "6d", true_origin);
+        evaluation.four_d = OtherMode::match_pairs(&prepared, &pairs, &four, "4d", true_origin);
+        evaluation.six_d = OtherMode::match_pairs(&prepared, &pairs, &six, "6d", true_origin);
         evaluation
     }
 
@@ -423,8 +467,9 @@ impl PairEvaluation {
             }
         };
         format!(
-            "pair evaluation: {} truly overlapping pairs ({} not placed in the graph); {}; {}",
+            "pair evaluation: {} truly overlapping pairs, {} sharing ≥ {EVALUATION_MIN_SHARED_KEYPOINTS} keypoints ({} not placed in a graph); {}; {}",
             self.overlapping,
+            self.sharing,
             self.unplaced,
             mode(&self.four_d),
             mode(&self.six_d)
@@ -434,6 +479,7 @@ impl PairEvaluation {
     pub fn to_json(&self) -> Value {
         json!({
             "overlapping_pairs": self.overlapping,
+            "sharing_pairs": self.sharing,
             "unplaced_pairs": self.unplaced,
             "4d": self.four_d.to_json(),
             "6d": self.six_d.to_json(),

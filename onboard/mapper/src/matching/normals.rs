@@ -55,8 +55,75 @@ pub(crate) fn normal_at(
     (len > 0.5).then(|| normal / len)
 }
 
+/// Normals of the points within `support_radius_m` of any of `centres` (None elsewhere and
+/// where undefined): what the descriptors of those centres read, at a fraction of
+/// [`all_normals`]'s cost on a submap whose keypoints cover a small part of it.
+pub(crate) fn normals_near(
+    points: &[Point3<f32>],
+    index: &PointIndex,
+    centres: &[Point3<f32>],
+    support_radius_m: f32,
+    radius_m: f32,
+) -> Vec<Option<Vector3<f32>>> {
+    let mut wanted = vec![false; points.len()];
+    let mut scratch = Vec::new();
+    for c in centres {
+        index.within(c, support_radius_m, &mut scratch);
+        for &j in &scratch {
+            wanted[j] = true;
+        }
+    }
+    wanted
+        .iter()
+        .enumerate()
+        .map(|(i, &w)| if w { normal_at(points, index, i, radius_m, &mut scratch) } else { None })
+        .collect()
+}
+
 /// Normals of every point (None where undefined).
 pub(crate) fn all_normals(points: &[Point3<f32>], index: &PointIndex, radius_m: f32) -> Vec<Option<Vector3<f32>>> {
     let mut scratch = Vec::new();
     (0..points.len()).map(|i| normal_at(points, index, i, radius_m, &mut scratch)).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 2 m × 2 m patch of 5 cm ground with a 0.3 m step in it, as a submap has.
+    fn step_patch() -> Vec<Point3<f32>> {
+        let mut points = Vec::new();
+        for i in 0..40 {
+            for j in 0..40 {
+                let (x, y) = (i as f32 * 0.05, j as f32 * 0.05);
+                points.push(Point3::new(x, y, if x > 1.0 { 0.3 } else { 0.0 }));
+            }
+        }
+        for k in 0..6 {
+            for j in 0..40 {
+                points.push(Point3::new(1.0, j as f32 * 0.05, k as f32 * 0.05));
+            }
+        }
+        points
+    }
+
+    #[test]
+    fn normals_near_centres_equal_the_full_computation_there_and_are_absent_elsewhere() {
+        let points = step_patch();
+        let index = PointIndex::new(&points);
+        let all = all_normals(&points, &index, 0.2);
+        let centres = [Point3::new(1.0, 1.0, 0.15), Point3::new(0.3, 0.3, 0.0)];
+        let near = normals_near(&points, &index, &centres, 0.2, 0.2);
+        let mut inside = 0;
+        for (i, p) in points.iter().enumerate() {
+            let distance = centres.iter().map(|c| (p - c).norm()).fold(f32::MAX, f32::min);
+            if distance < 0.199 {
+                inside += 1;
+                assert_eq!(near[i], all[i], "point {i}");
+            } else if distance > 0.201 {
+                assert_eq!(near[i], None, "point {i} is outside every support");
+            }
+        }
+        assert!(inside > 30 && all.iter().filter(|n| n.is_some()).count() > 10 * inside / 2, "{inside}");
+    }
 }

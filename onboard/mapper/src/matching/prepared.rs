@@ -9,7 +9,7 @@ use nalgebra::{Point3, Vector3};
 
 use super::descriptor::{Features, compute_features};
 use super::keypoints::{line_spread, obstacle_keypoints};
-use super::normals::all_normals;
+use super::normals::{all_normals, normals_near};
 use super::params::MatcherParams;
 use super::report::Unsuitable;
 use super::spatial::PointIndex;
@@ -119,9 +119,26 @@ impl PreparedCloud {
         self.normals.get_or_init(|| all_normals(&self.positions, self.index(), self.params.normal_radius_m as f32))
     }
 
+    /// Descriptors of the keypoints. They read the normals of the points within the descriptor
+    /// radius of a keypoint only: those are computed alone unless every normal already is (ICP
+    /// as the target needs them all, and most pairs never reach ICP).
     pub(crate) fn features(&self) -> &Features {
         self.features.get_or_init(|| {
-            compute_features(&self.cloud, &self.positions, self.normals(), self.index(), &self.keypoints, &self.params)
+            let near;
+            let normals = match self.normals.get() {
+                Some(all) => all.as_slice(),
+                None => {
+                    near = normals_near(
+                        &self.positions,
+                        self.index(),
+                        &self.keypoints,
+                        self.params.descriptor_radius_m as f32,
+                        self.params.normal_radius_m as f32,
+                    );
+                    near.as_slice()
+                }
+            };
+            compute_features(&self.cloud, &self.positions, normals, self.index(), &self.keypoints, &self.params)
         })
     }
 }
