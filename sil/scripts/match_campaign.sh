@@ -6,7 +6,7 @@
 # aggregates them.
 #
 #   JOBS=2 ROCKS=12 sil/scripts/match_campaign.sh OUT [SECONDS] [DOWNSCALE] [SEED...]
-# ROCKS: rocks per 100 m² instead of the presets' (moon 1, mars 3.5): the thesis's matcher needs
+# RADIO: serial (default) or wifi. ROCKS: rocks per 100 m² instead of the presets' (moon 1, mars 3.5): the thesis's matcher needs
 # obstacles, and its arena and Etna runs had many more than our open plains.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -24,7 +24,7 @@ for world in mars moon; do
         dir="$out/$world-s$seed"
         ./target/release/sil mission --scenario "$world" --seed "$seed" --duration "$seconds" \
             --downscale "$downscale" --evaluate-match-pairs --rocks-in-hub ${ROCKS:+--rocks-per-100m2 "$ROCKS"} \
-            --out "$dir" >"$dir.log" 2>&1 \
+            ${RADIO:+--radio "$RADIO"} --out "$dir" >"$dir.log" 2>&1 \
             || echo "run $world $seed failed: see $dir.log" >&2 &
         running=$((running + 1))
         if [ "$running" -ge "${JOBS:-2}" ]; then

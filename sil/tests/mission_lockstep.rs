@@ -80,3 +80,24 @@ fn lockstep_mission_writes_outputs_scores_robots_and_repeats_exactly() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `--solo`: the same robots with no radio between them run single-robot SLAM each, the
+/// baseline of the team-against-alone comparison: each robot's graph holds itself only. (Robot 1
+/// still sees robot 2's markers and keeps the detections, but with nothing of robot 2 they
+/// connect nothing.)
+#[test]
+fn solo_robots_stay_alone() {
+    let dir = std::env::temp_dir().join(format!("onboard-mission-solo-{}", std::process::id()));
+    let report = mission::run(&MissionOptions { solo: true, ..options(&dir) }).unwrap();
+    print!("{}", report.summary());
+    assert!(report.solo);
+    for robot in &report.robots {
+        assert_eq!(robot.connected, vec![robot.robot], "robot {} is connected to {:?}", robot.robot, robot.connected);
+        assert_eq!(robot.submaps_received, 0);
+        assert!(robot.score.as_ref().is_some_and(|s| s.mean_error_m < 0.10), "robot {} unscored or lost", robot.robot);
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["solo"], true);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -307,6 +307,18 @@ mod tests {
         }
     }
 
+    #[test]
+    fn solo_and_hub_rocks_reach_the_mission_options() {
+        let args = ["--solo", "--rocks-in-hub", "--rocks-per-100m2", "12"];
+        let (options, _) = parse_args(args.iter().map(OsString::from).collect()).unwrap().unwrap();
+        assert!(options.solo && options.rocks_in_hub);
+        assert_eq!(options.rocks_per_100m2, Some(12.0));
+        let (default, _) = parse_args(Vec::new()).unwrap().unwrap();
+        assert!(!default.solo && !default.rocks_in_hub);
+        let refused = parse_args(["--solo", "--runner", "process"].iter().map(OsString::from).collect());
+        assert!(refused.unwrap_err().contains("--solo"));
+    }
+
     proptest! {
         #[test]
         fn any_outage_text_parses_or_is_refused(text in "\\PC{0,24}") {
