@@ -256,3 +256,35 @@ mod never_panics {
         }
     }
 }
+
+/// The diagnosis against a known pose tells a matchable pair from one that is not: at the true
+/// transform the clouds share keypoints, descriptor correspondences and a hypothesis agree with
+/// it and ICP stays put; at a transform 3 m off none of that holds.
+#[test]
+fn diagnosis_against_the_truth_and_against_a_wrong_pose() {
+    use mapper::matching::diagnose::diagnose;
+    let pair = standard_pair(0.01);
+    let params = MatcherParams::default();
+    let source = prepare(pair.source.clone(), &params);
+    let target = prepare(pair.target.clone(), &params);
+    let truth = diagnose(&source, &target, &pair.t_target_source, &params);
+    eprintln!("at the truth: {truth:?}");
+    assert!(truth.shared_keypoints > source.keypoints().len() / 4, "{truth:?}");
+    assert!(truth.true_correspondences > truth.correspondences / 20, "{truth:?}");
+    assert!(truth.true_hypotheses >= 1 && truth.best_true_inliers == truth.best_inliers, "{truth:?}");
+    let (moved_m, moved_deg, _) = truth.icp_from_truth.expect("ICP from the truth converges");
+    assert!(moved_m < 0.02 && moved_deg < 0.2, "{truth:?}");
+
+    let wrong = Isometry3::from_parts(
+        (pair.t_target_source.translation.vector + Vector3::new(3.0, 0.0, 0.0)).into(),
+        pair.t_target_source.rotation,
+    );
+    let off = diagnose(&source, &target, &wrong, &params);
+    eprintln!("3 m off: {off:?}");
+    // 45 rocks in 8 m: keypoints of other rocks fall near one another by chance.
+    assert!(off.shared_keypoints < truth.shared_keypoints / 2, "{off:?}");
+    assert!(off.true_correspondences < truth.true_correspondences / 10, "{off:?}");
+    assert_eq!(off.true_hypotheses, 0, "{off:?}");
+    // Same features and correspondences whatever pose they are measured against.
+    assert_eq!((off.correspondences, off.hypotheses), (truth.correspondences, truth.hypotheses));
+}

@@ -15,6 +15,7 @@ use std::collections::BTreeMap;
 use std::collections::BTreeSet;
 use std::sync::Arc;
 
+use mapper::matching::diagnose::{self, PairDiagnosis};
 use mapper::matching::{PreparedCloud, RelativePrior};
 use mapper::pairing::{PlacedSubmap, delta_sigma_in_frame, delta_sigma_m, global_position_variance_m2, xy_bounds};
 use mapper::scheduler::{AttemptRecord, MatchScheduler};
@@ -80,6 +81,8 @@ pub struct OtherMode {
     pub scores: Vec<MatchScore>,
     /// Matching time of all attempts (s).
     pub total_s: f64,
+    /// Per attempt: the pair and "accepted" or the rejection's name.
+    pub outcomes: Vec<(SubmapPair, &'static str)>,
 }
 
 impl OtherMode {
@@ -129,6 +132,7 @@ impl OtherMode {
                     Err(rejection.name())
                 }
             };
+            other.outcomes.push((*pair, result.as_ref().map_or_else(|name| *name, |_| "accepted")));
             let record = AttemptRecord {
                 pair: *pair,
                 started_ns: 0,
@@ -154,6 +158,11 @@ impl OtherMode {
             "mean_attempt_s": if self.attempts > 0 { self.total_s / self.attempts as f64 } else { 0.0 },
             "false_positives": self.scores.iter().filter(|s| s.false_positive()).count(),
             "matches": self.scores.iter().map(score_json).collect::<Vec<_>>(),
+            "outcomes": self
+                .outcomes
+                .iter()
+                .map(|(p, o)| json!({"a": [p.first().robot, p.first().index], "b": [p.second().robot, p.second().index], "outcome": o}))
+                .collect::<Vec<_>>(),
         })
     }
 }
@@ -328,26 +337,13 @@ fn yaw_rad(t: &Isometry3<f64>) -> f64 {
 /// queues such pairs).
 pub const EVALUATION_MIN_DELTA_SIGMA_M: f64 = 0.5;
 
-/// Keypoints of one submap that must lie within [`SHARED_KEYPOINT_RADIUS_M`] of the other's under
-/// the true relative pose for a pair to be evaluated: overlapping boxes are not enough, the two
-/// submaps must have seen the same obstacles (the thesis's descriptiveness minimum, 10).
+/// Keypoints of one submap that must lie within `mapper::matching::diagnose::SAME_KEYPOINT_M`
+/// of the other's under the true relative pose for a pair to be evaluated: overlapping boxes are
+/// not enough, the two submaps must have seen the same obstacles (the thesis's descriptiveness
+/// minimum, 10).
 pub const EVALUATION_MIN_SHARED_KEYPOINTS: usize = 10;
-/// Twice the keypoint voxel (0.1 m): the same obstacle seen from two places.
-pub const SHARED_KEYPOINT_RADIUS_M: f64 = 0.2;
 
-/// Keypoints of `b` that lie within [`SHARED_KEYPOINT_RADIUS_M`] of a keypoint of `a` under
-/// `t_a_b` (brute force: a few hundred keypoints per submap).
-pub fn shared_keypoints(a: &[nalgebra::Point3<f32>], b: &[nalgebra::Point3<f32>], t_a_b: &Isometry3<f64>) -> usize {
-    let r2 = SHARED_KEYPOINT_RADIUS_M * SHARED_KEYPOINT_RADIUS_M;
-    b.iter()
-        .filter(|p| {
-            let q = t_a_b * p.cast::<f64>();
-            a.iter().any(|k| (k.cast::<f64>() - q).norm_squared() < r2)
-        })
-        .count()
-}
-
-/// What the pair evaluation reads of one robot at the end of a mission.
+/// What to bring into the pair evaluation of one robot at the end of a mission.
 #[derive(Debug)]
 pub struct RobotView<'a> {
     pub scheduler: &'a MatchScheduler,
@@ -363,6 +359,8 @@ pub struct PairEvaluation {
     /// Of these, pairs sharing at least [`EVALUATION_MIN_SHARED_KEYPOINTS`] keypoints under the
     /// truth; those both placed in a robot's graph were matched.
     pub sharing: usize,
+    /// The sharing pairs' matcher internals against the truth (4D parameters).
+    pub diagnoses: Vec<(SubmapPair, Isometry3<f64>, PairDiagnosis)>,
     pub unplaced: usize,
     pub four_d: OtherMode,
     pub six_d: OtherMode,
@@ -412,10 +410,18 @@ impl PairEvaluation {
                 }
                 evaluation.overlapping += 1;
                 let t_a_b = true_a.inverse() * true_b;
-                if shared_keypoints(prep_a.keypoints(), prep_b.keypoints(), &t_a_b) < EVALUATION_MIN_SHARED_KEYPOINTS {
+                if diagnose::shared_keypoints(prep_b.keypoints(), prep_a.keypoints(), &t_a_b)
+                    < EVALUATION_MIN_SHARED_KEYPOINTS
+                {
                     continue;
                 }
                 evaluation.sharing += 1;
+                // Target = a, source = b, as matched below.
+                evaluation.diagnoses.push((
+                    pair,
+                    t_a_b,
+                    diagnose::diagnose(&prep_b, &prep_a, &t_a_b, &first.scheduler.config().matcher),
+                ));
                 let placed = |view: &RobotView<'_>, id| {
                     Some(PlacedSubmap {
                         id,
@@ -480,6 +486,23 @@ impl PairEvaluation {
         json!({
             "overlapping_pairs": self.overlapping,
             "sharing_pairs": self.sharing,
+            "diagnoses": self.diagnoses.iter().map(|(p, t, d)| json!({
+                "a": [p.first().robot, p.first().index],
+                "b": [p.second().robot, p.second().index],
+                "t_a_b_true": {
+                    "translation_m": t.translation.vector.as_slice(),
+                    "quaternion_xyzw": t.rotation.coords.as_slice(),
+                },
+                "shared_keypoints": d.shared_keypoints,
+                "described": [d.described.0, d.described.1],
+                "correspondences": d.correspondences,
+                "true_correspondences": d.true_correspondences,
+                "hypotheses": d.hypotheses,
+                "true_hypotheses": d.true_hypotheses,
+                "best_inliers": d.best_inliers,
+                "best_true_inliers": d.best_true_inliers,
+                "icp_from_truth": d.icp_from_truth.map(|(m, deg, rmse)| json!({"moved_m": m, "moved_deg": deg, "rmse_m": rmse})),
+            })).collect::<Vec<_>>(),
             "unplaced_pairs": self.unplaced,
             "4d": self.four_d.to_json(),
             "6d": self.six_d.to_json(),

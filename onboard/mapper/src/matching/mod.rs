@@ -71,6 +71,7 @@
 mod correspondences;
 mod covariance;
 mod descriptor;
+pub mod diagnose;
 mod hough;
 mod icp;
 mod keypoints;
