@@ -7,7 +7,6 @@ use nalgebra::{Isometry3, Point3};
 
 use super::correspondences::find_correspondences;
 use super::icp::{Problem, icp};
-use super::params::IcpMetric;
 use super::params::MatcherParams;
 use super::pipeline::hypotheses;
 use super::prepared::PreparedCloud;
@@ -77,15 +76,7 @@ pub fn diagnose(
             (ft.position[c.target].cast::<f64>() - q).norm() < params.ransac_inlier_m
         })
         .count();
-    let problem = Problem {
-        source: source.positions(),
-        target: target.positions(),
-        target_normals: match params.icp_metric {
-            IcpMetric::PointToPlane => target.normals(),
-            IcpMetric::PointToPoint => &[],
-        },
-        metric: params.icp_metric,
-    };
+    let problem = Problem::between(source, target, params.icp_metric);
     d.icp_from_truth = icp(&problem, target.index(), t_target_source, params).ok().map(|r| {
         let off = t_target_source.inverse() * r.t_target_source;
         (off.translation.vector.norm(), off.rotation.angle().to_degrees(), r.rmse_m)

@@ -32,6 +32,7 @@ use std::collections::HashSet;
 use nalgebra::{Isometry3, Matrix6, Point3, RowVector6, Translation3, UnitQuaternion, Vector3, Vector6};
 
 use super::params::{IcpMetric, MatchMode, MatcherParams};
+use super::prepared::PreparedCloud;
 use super::spatial::PointIndex;
 use crate::cloud::VoxelBuildHasher;
 
@@ -64,7 +65,21 @@ pub(crate) struct Problem<'a> {
     pub metric: IcpMetric,
 }
 
-impl Problem<'_> {
+impl<'a> Problem<'a> {
+    /// The ICP problem of `source` into `target` with `metric` (target normals only where the
+    /// residual reads them: computing them is the expensive part).
+    pub(crate) fn between(source: &'a PreparedCloud, target: &'a PreparedCloud, metric: IcpMetric) -> Problem<'a> {
+        Problem {
+            source: source.positions(),
+            target: target.positions(),
+            target_normals: match metric {
+                IcpMetric::PointToPlane => target.normals(),
+                IcpMetric::PointToPoint => &[],
+            },
+            metric,
+        }
+    }
+
     /// JᵀJ, Jᵀe and Σe² over `pairs` at `t`, in the full 6-D tangent `[ρ, φ]`.
     ///
     /// With `A_i = [I, −[s_i]×]` the Jacobian of `Δ(δ)·s_i` at δ = 0, the point-to-point

@@ -9,7 +9,7 @@ use super::covariance::match_covariance;
 use super::hough::{Direction, Side, cluster};
 use super::icp::{Problem, icp};
 use super::keypoints::line_spread;
-use super::params::{IcpMetric, MatchMode, MatcherParams};
+use super::params::{MatchMode, MatcherParams};
 use super::prepared::PreparedCloud;
 use super::ransac::ransac;
 use super::report::{MatchFound, MatchReport, Rejection, RelativePrior, StageTimes};
@@ -162,15 +162,7 @@ fn run(
     let best = &hyps[chosen?];
 
     let t3 = Instant::now();
-    let problem = Problem {
-        source: source.positions(),
-        target: target.positions(),
-        target_normals: match params.icp_metric {
-            IcpMetric::PointToPlane => target.normals(),
-            IcpMetric::PointToPoint => &[],
-        },
-        metric: params.icp_metric,
-    };
+    let problem = Problem::between(source, target, params.icp_metric);
     let result = icp(&problem, target.index(), &best.t_target_source, params);
     let outcome = result.map_err(|_| Rejection::IcpFailed).and_then(|r| {
         let smaller = source.positions().len().min(target.positions().len()).max(1);
