@@ -1,9 +1,10 @@
 //! Runtime choice of the instruction set: the same generic kernels compiled three times (baseline,
 //! AVX2, AVX-512 with the byte popcount), the best one the CPU supports picked once per matcher.
-//! This is the crate's only `unsafe`: calling a `#[target_feature]` function.
+//! `unsafe` here: calling a `#[target_feature]` function (and, in `super::avx512`, the
+//! intrinsics' raw loads and stores).
 #![allow(unsafe_code)]
 
-use super::kernels::{self, Aborted, Job};
+use super::kernels::{self, Aborted, Autovectorised, Job};
 use super::lane::Lane;
 
 /// An instruction set the kernels are compiled for.
@@ -77,17 +78,19 @@ pub(crate) fn run<T: Lane, const L: usize>(isa: Isa, job: Job<'_, '_, '_, T>) ->
 }
 
 fn portable<T: Lane, const L: usize>(job: Job<'_, '_, '_, T>) -> Result<(), Aborted> {
-    kernels::run::<T, L>(job)
+    kernels::run::<T, L, _>(job, Autovectorised)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,bmi1,bmi2,popcnt,lzcnt")]
 fn avx2<T: Lane, const L: usize>(job: Job<'_, '_, '_, T>) -> Result<(), Aborted> {
-    kernels::run::<T, L>(job)
+    kernels::run::<T, L, _>(job, Autovectorised)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512bitalg,avx512vpopcntdq,avx2,bmi1,bmi2,popcnt,lzcnt")]
 fn avx512<T: Lane, const L: usize>(job: Job<'_, '_, '_, T>) -> Result<(), Aborted> {
-    kernels::run::<T, L>(job)
+    // SAFETY: this kernel runs only after `Isa::detect` found AVX-512F/BW (see `run`).
+    let intrinsics = unsafe { super::avx512::Avx512::new_unchecked() };
+    kernels::run::<T, L, _>(job, intrinsics)
 }

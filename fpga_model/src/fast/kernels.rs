@@ -30,6 +30,8 @@ pub(crate) const CENSUS_BLOCK: usize = 64;
 const SELECT_BLOCK: usize = 16;
 /// Paths whose predecessor lies in the previous row: top-left, top, top-right.
 pub(crate) const PATHS_FROM_ABOVE: usize = 3;
+/// Pixels between a volume prefetch and the use of what it fetched.
+const PREFETCH_PX: usize = 4;
 /// `winner` entry of a pixel that failed the uniqueness test.
 pub(crate) const NO_WINNER: u16 = u16::MAX;
 
@@ -58,14 +60,12 @@ pub(crate) struct Geometry {
     pub left_plane_stride: usize,
     /// Bytes per mirrored right census plane row (room for `W − 1 + Dp` reads).
     pub right_plane_stride: usize,
-    /// Pixels per row-buffer block (the unit of hand-over between wavefront threads).
-    pub block_px: usize,
     pub blocks: usize,
     /// `0, 1, …, Dp − 1`: the disparity of each lane, loaded as a vector by the selection loops.
     pub ramp: Vec<u16>,
 }
 
-/// Pixels per row-buffer block: small enough that a follower thread is only two blocks behind,
+/// Pixels per row-buffer block (the unit of hand-over between wavefront threads): small enough that a follower thread is only two blocks behind,
 /// large enough that the four lock operations per block are noise.
 const BLOCK_PX: usize = 64;
 
@@ -90,7 +90,6 @@ impl Geometry {
             }
         }
         let planes = neighbours.len().div_ceil(8);
-        let block_px = BLOCK_PX;
         Geometry {
             width,
             height,
@@ -104,8 +103,7 @@ impl Geometry {
             planes,
             left_plane_stride: width_padded,
             right_plane_stride: width_padded + lanes,
-            block_px,
-            blocks: width.div_ceil(block_px),
+            blocks: width.div_ceil(BLOCK_PX),
             ramp: (0..lanes as u16).collect(),
         }
     }
@@ -149,7 +147,7 @@ impl Direction {
     }
 }
 
-/// Path costs of the three from-above paths for `block_px` pixels of one row.
+/// Path costs of the three from-above paths for [`BLOCK_PX`] pixels of one row.
 #[derive(Debug)]
 pub(crate) struct Block<T> {
     /// `[pixel][path][slot]`.
@@ -171,7 +169,7 @@ pub(crate) struct PassRows<T> {
 
 impl<T: Lane> PassRows<T> {
     pub(crate) fn new(geometry: &Geometry, threads: usize) -> PassRows<T> {
-        let block_len = geometry.block_px * PATHS_FROM_ABOVE * geometry.slot;
+        let block_len = BLOCK_PX * PATHS_FROM_ABOVE * geometry.slot;
         let rows = (0..=threads)
             .map(|_| {
                 (0..geometry.blocks)
@@ -180,7 +178,7 @@ impl<T: Lane> PassRows<T> {
                         // row before anything reads them, the guards are never written.
                         Mutex::new(Block {
                             lanes: vec![T::MAX; block_len],
-                            minima: vec![T::MAX; geometry.block_px * PATHS_FROM_ABOVE],
+                            minima: vec![T::MAX; BLOCK_PX * PATHS_FROM_ABOVE],
                         })
                     })
                     .collect()
@@ -341,9 +339,12 @@ pub(crate) struct Aborted;
 
 /// The one entry point of the kernels (compiled once per instruction set).
 #[inline(always)]
-pub(crate) fn run<T: Lane, const L: usize>(job: Job<'_, '_, '_, T>) -> Result<(), Aborted> {
+pub(crate) fn run<T: Lane, const L: usize, A: PixelKernels>(
+    job: Job<'_, '_, '_, T>,
+    kernels: A,
+) -> Result<(), Aborted> {
     match job {
-        Job::Row(row) => process_row::<T, L>(row),
+        Job::Row(row) => process_row::<T, L, A>(row, kernels),
         Job::Finish(finish) => {
             finish_image(finish);
             Ok(())
@@ -414,7 +415,7 @@ fn census_row(planes: &mut [u8], plane_stride: usize, padded: &[u8], geometry: &
 /// `Dp`-byte scratch row; `gradient` is `GL(x)`, `gradient_right` the mirrored `GR` row.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn cost_pixel<T: Lane>(
+pub(crate) fn cost_pixel<T: Lane>(
     cost: &mut [T],
     bytes: &mut [u8],
     census_left: &[u8],
@@ -541,20 +542,18 @@ fn path_step<T: Lane, const L: usize>(
 /// The four paths of a pass at one pixel, and their sum. Returns the new minima `M`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn aggregate_pixel<T: Lane, const L: usize>(
+pub(crate) fn aggregate_pixel<T: Lane, const L: usize>(
     g: &Geometry,
     params: &Params<T>,
     cost: &[T],
     prev: [&[T]; 4],
     prev_min: [T; 4],
     jump: [T; 4],
-    out0: &mut [T],
-    out1: &mut [T],
-    out2: &mut [T],
-    out3: &mut [T],
+    outs: [&mut [T]; 4],
     sums_in: &[u16],
     sums_out: &mut [u16],
 ) -> [T; 4] {
+    let [out0, out1, out2, out3] = outs;
     let (p1, lmax) = (params.p1, params.path_cost_max);
     for c in 0..g.lanes / L {
         let base = c * L;
@@ -571,6 +570,74 @@ fn aggregate_pixel<T: Lane, const L: usize>(
     // makes LLVM spill them and reassemble the lanes through the stack.
     let lanes = 1..g.lanes + 1;
     [min_of(&out0[lanes.clone()]), min_of(&out1[lanes.clone()]), min_of(&out2[lanes.clone()]), min_of(&out3[lanes])]
+}
+
+/// The per-pixel work of a row as an instruction set implements it: [`Autovectorised`] is the
+/// generic code as LLVM compiles it for the kernel's target features; `super::avx512::Avx512`
+/// writes the matching cost and the four path updates with intrinsics. Both give the same bits.
+pub(crate) trait PixelKernels: Copy {
+    /// Writes the four new vectors from index 1 of `outs` (after the guard), `sums_out =
+    /// sums_in + Σ L_r`, and returns the new minima `M`.
+    #[allow(clippy::too_many_arguments)]
+    fn aggregate<T: Lane, const L: usize>(
+        self,
+        g: &Geometry,
+        params: &Params<T>,
+        cost: &[T],
+        prev: [&[T]; 4],
+        prev_min: [T; 4],
+        jump: [T; 4],
+        outs: [&mut [T]; 4],
+        sums_in: &[u16],
+        sums_out: &mut [u16],
+    ) -> [T; 4];
+
+    /// `C(x, y, ·)`; see [`cost_pixel`].
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn cost<T: Lane>(
+        self,
+        cost: &mut [T],
+        bytes: &mut [u8],
+        census_left: &[u8],
+        census_right: &[u8],
+        gradient_right: &[i16],
+        gradient: i16,
+        params: &Params<T>,
+        g: &Geometry,
+        x: usize,
+    ) {
+        cost_pixel(cost, bytes, census_left, census_right, gradient_right, gradient, params, g, x);
+    }
+
+    /// Asks for the cache lines of `values` (a later pixel's sums in the `Eight` volume) ahead
+    /// of their use; a hint only.
+    #[inline(always)]
+    fn prefetch(self, values: &[u16]) {
+        let _ = values;
+    }
+}
+
+/// The generic kernels, vectorised by LLVM.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Autovectorised;
+
+impl PixelKernels for Autovectorised {
+    #[inline(always)]
+    fn aggregate<T: Lane, const L: usize>(
+        self,
+        g: &Geometry,
+        params: &Params<T>,
+        cost: &[T],
+        prev: [&[T]; 4],
+        prev_min: [T; 4],
+        jump: [T; 4],
+        outs: [&mut [T]; 4],
+        sums_in: &[u16],
+        sums_out: &mut [u16],
+    ) -> [T; 4] {
+        aggregate_pixel::<T, L>(g, params, cost, prev, prev_min, jump, outs, sums_in, sums_out)
+    }
 }
 
 /// `M`: the smallest lane of a path-cost vector (see [`min_u16`] for the shape).
@@ -677,7 +744,6 @@ fn right_update<const LATER_IS_SMALLER: bool>(
 struct Above<'g, T> {
     blocks: [Option<MutexGuard<'g, Block<T>>>; 3],
     first_block: isize,
-    block_px: usize,
     slot: usize,
 }
 
@@ -685,9 +751,10 @@ impl<T: Lane> Above<'_, T> {
     /// The vector and `M` of `path` at iteration column `i` of the previous row.
     #[inline(always)]
     fn get(&self, i: usize, path: usize) -> Option<(&[T], T)> {
-        let b = (i / self.block_px) as isize - self.first_block;
+        // A constant divisor: shifts, not a division per lookup.
+        let b = (i / BLOCK_PX) as isize - self.first_block;
         let block = self.blocks.get(usize::try_from(b).ok()?)?.as_ref()?;
-        let o = (i % self.block_px) * PATHS_FROM_ABOVE + path;
+        let o = (i % BLOCK_PX) * PATHS_FROM_ABOVE + path;
         Some((&block.lanes[o * self.slot..][..self.slot], block.minima[o]))
     }
 }
@@ -718,7 +785,10 @@ fn from_above<'a, T: Lane>(
 /// Census, cost, aggregation of the four paths of a pass and, when the sum is complete, winner
 /// selection and the left-right check, for one row.
 #[inline(always)]
-fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<(), Aborted> {
+fn process_row<T: Lane, const L: usize, A: PixelKernels>(
+    job: RowJob<'_, '_, '_, T>,
+    kernels: A,
+) -> Result<(), Aborted> {
     let RowJob { frame, params, pass, thread, direction, row: j, scratch, mut sums, out } = job;
     let g = frame.geometry;
     let (w, h) = (g.width, g.height);
@@ -780,13 +850,12 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
                 [None, None, None]
             },
             first_block: k as isize - 1,
-            block_px: g.block_px,
             slot: g.slot,
         };
         let Block { lanes: current_lanes, minima: current_minima } = &mut *current;
-        for i in k * g.block_px..((k + 1) * g.block_px).min(w) {
+        for i in k * BLOCK_PX..((k + 1) * BLOCK_PX).min(w) {
             let x = direction.physical(i, w);
-            cost_pixel(cost, cost_bytes, census_left, census_right, gradient_right, gradient_left[x], params, g, x);
+            kernels.cost(cost, cost_bytes, census_left, census_right, gradient_right, gradient_left[x], params, g, x);
             let intensity = left_row[x];
 
             // Predecessors: from the left (same row), then top-left, top, top-right.
@@ -806,26 +875,36 @@ fn process_row<T: Lane, const L: usize>(job: RowJob<'_, '_, '_, T>) -> Result<()
             let top = above_at(i, 1);
             let top_right = if i + 1 < w { above_at(i + 1, 2) } else { (zero, T::default(), T::default()) };
 
-            let o = i % g.block_px;
+            let o = i % BLOCK_PX;
             let outputs = &mut current_lanes[o * PATHS_FROM_ABOVE * g.slot..][..PATHS_FROM_ABOVE * g.slot];
             let (out1, rest) = outputs.split_at_mut(g.slot);
             let (out2, out3) = rest.split_at_mut(g.slot);
+            // The volume was written half a frame ago and is out of the caches: ask for the sums
+            // of a pixel a few steps ahead (what the next pixels need arrives meanwhile).
+            let volume_row: Option<&[u16]> = match &sums {
+                Sums::Select => None,
+                Sums::Store(row) => Some(row),
+                Sums::AddSelect(row) => Some(row),
+            };
+            if let Some(volume_row) = volume_row
+                && i + PREFETCH_PX < w
+            {
+                let ahead = direction.physical(i + PREFETCH_PX, w);
+                kernels.prefetch(&volume_row[ahead * g.lanes..][..g.lanes]);
+            }
             let (sums_in, sums_out): (&[u16], &mut [u16]) = match &mut sums {
                 Sums::Select => (zero_sums, &mut sum_buf[..]),
                 Sums::Store(volume_row) => (zero_sums, &mut volume_row[x * g.lanes..][..g.lanes]),
                 Sums::AddSelect(volume_row) => (&volume_row[x * g.lanes..][..g.lanes], &mut sum_buf[..]),
             };
-            let minima = aggregate_pixel::<T, L>(
+            let minima = kernels.aggregate::<T, L>(
                 g,
                 params,
                 cost,
                 [from_left.0, top_left.0, top.0, top_right.0],
                 [from_left.1, top_left.1, top.1, top_right.1],
                 [from_left.2, top_left.2, top.2, top_right.2],
-                h_cur,
-                out1,
-                out2,
-                out3,
+                [h_cur, out1, out2, out3],
                 sums_in,
                 sums_out,
             );

@@ -27,6 +27,11 @@ pub(crate) trait Lane: Copy + Ord + Default + Send + Sync + std::fmt::Debug + 's
     /// `self − other` for `self ≥ other`.
     fn minus(self, other: Self) -> Self;
     fn widen(self) -> u16;
+    /// The slice as bytes, for the byte-lane intrinsics (`None` for wider lanes).
+    fn bytes(values: &[Self]) -> Option<&[u8]>;
+    fn bytes_mut(values: &mut [Self]) -> Option<&mut [u8]>;
+    /// The value as a byte lane (`None` for wider lanes).
+    fn to_byte(self) -> Option<u8>;
 }
 
 impl Lane for u8 {
@@ -57,6 +62,21 @@ impl Lane for u8 {
     fn widen(self) -> u16 {
         u16::from(self)
     }
+
+    #[inline(always)]
+    fn bytes(values: &[Self]) -> Option<&[u8]> {
+        Some(values)
+    }
+
+    #[inline(always)]
+    fn bytes_mut(values: &mut [Self]) -> Option<&mut [u8]> {
+        Some(values)
+    }
+
+    #[inline(always)]
+    fn to_byte(self) -> Option<u8> {
+        Some(self)
+    }
 }
 
 impl Lane for u16 {
@@ -86,5 +106,20 @@ impl Lane for u16 {
     #[inline(always)]
     fn widen(self) -> u16 {
         self
+    }
+
+    #[inline(always)]
+    fn bytes(_: &[Self]) -> Option<&[u8]> {
+        None
+    }
+
+    #[inline(always)]
+    fn bytes_mut(_: &mut [Self]) -> Option<&mut [u8]> {
+        None
+    }
+
+    #[inline(always)]
+    fn to_byte(self) -> Option<u8> {
+        None
     }
 }

@@ -23,6 +23,8 @@
 //!   Integer sums do not depend on the order of the passes, so every thread count gives the
 //!   same bits.
 
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 mod dispatch;
 mod kernels;
 mod lane;
