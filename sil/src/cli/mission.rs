@@ -26,6 +26,8 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--d
                          default) or process (one OS process per component over iceoryx2,
                          fixed-rate tasks on the wall clock)
   --radio R              serial (57.6 kbit/s radio, default) or wifi (lossy mesh)
+  --threads N            lockstep runner: threads stepping the robots in parallel between its
+                         barriers (default: the machine's cores; the outputs do not depend on it)
   --markers M            the robots' AprilTag detector and its uncertainty model: lut_online
                          (the thesis's, default), lut, online, quadratic, constant, or off; a
                          camera without a table (wide-angle, flyer) uses online for the lut models
@@ -133,6 +135,13 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                     "serial" => RadioPreset::SerialRadio,
                     "wifi" => RadioPreset::Wifi,
                     other => return Err(format!("--radio: expected serial or wifi, got {other:?}")),
+                };
+            }
+            Long("threads") => {
+                let v = text(&mut parser, "--threads")?;
+                options.step_threads = match v.parse::<usize>() {
+                    Ok(n) if (1..=64).contains(&n) => n,
+                    _ => return Err(format!("--threads: expected 1 to 64, got {v:?}")),
                 };
             }
             Long("truth-loop-closures") => options.truth_loop_closures = true,

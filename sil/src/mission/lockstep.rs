@@ -119,6 +119,31 @@ fn hal_datagram() -> protocol::frame::Framing {
     protocol::frame::Framing::Datagram { mtu: 1200 }
 }
 
+/// Steps every robot to `now_ns`, the robots split over up to `threads` threads. Between two
+/// steps the robots only meet through the radios, which the runner moves after this returns,
+/// so the order in which they step decides nothing: the outputs are those of a sequential run.
+fn step_robots(robots: &mut [MissionRobot], now_ns: u64, threads: usize) -> Result<(), MissionError> {
+    let step_all = |robots: &mut [MissionRobot]| {
+        robots.iter_mut().try_for_each(|r| r.stack.step(now_ns).map_err(|e| MissionError::Node(self_robot(r.robot), e)))
+    };
+    if threads <= 1 || robots.len() < 2 {
+        return step_all(robots);
+    }
+    let per_thread = robots.len().div_ceil(threads.min(robots.len()));
+    std::thread::scope(|scope| {
+        let mut groups = robots.chunks_mut(per_thread);
+        let first = groups.next();
+        let others: Vec<_> = groups.map(|group| scope.spawn(move || step_all(group))).collect();
+        // The first error in robot order, as a sequential run would report it.
+        let mut result = first.map_or(Ok(()), step_all);
+        for handle in others {
+            let outcome = handle.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            result = result.and(outcome);
+        }
+        result
+    })
+}
+
 /// Moves one step's ground traffic: what the ground sent back first (it may free window room),
 /// then what each robot may send now.
 fn step_ground(ground: &mut GroundEnd, robots: &mut [MissionRobot], now_ns: u64) -> Result<(), MissionError> {
@@ -177,9 +202,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     let end_ns = (options.duration_s * 1e9) as u64;
     let mut now_ns = 0;
     while now_ns <= end_ns {
-        for r in &mut robots {
-            r.stack.step(now_ns).map_err(|e| MissionError::Node(self_robot(r.robot), e))?;
-        }
+        step_robots(&mut robots, now_ns, options.step_threads)?;
         if let Some(truth) = &mut truth {
             for r in &mut robots {
                 for message in r.stack.bus.take_tapped() {

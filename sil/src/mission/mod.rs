@@ -100,6 +100,9 @@ pub struct MissionOptions {
     /// The mapper's submap length instead of the configuration's 7 m (process runner only;
     /// short missions use it to finish submaps).
     pub submap_max_distance_m: Option<f64>,
+    /// Lockstep runner: threads that step the robots between its barriers (1: one robot after
+    /// the other). The outputs do not depend on it.
+    pub step_threads: usize,
 }
 
 impl Default for MissionOptions {
@@ -128,6 +131,7 @@ impl Default for MissionOptions {
             ground_link: crate::relay::GroundLinkEmulation::default(),
             faults: Vec::new(),
             submap_max_distance_m: None,
+            step_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         }
     }
 }
