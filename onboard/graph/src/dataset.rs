@@ -51,7 +51,10 @@ pub fn from_g2o(graph: &G2oGraph, robust: Option<RobustSelection>) -> Result<Pro
                 return Err(GraphError::UnknownVariable(Key(id)));
             }
         }
-        let mut noise = NoiseModel::from_information(edge.information)?;
+        let mut noise = NoiseModel::from_information(edge.information).map_err(|e| match e {
+            GraphError::InvalidNoise(reason) => GraphError::InvalidEdgeNoise { from: edge.from, to: edge.to, reason },
+            other => other,
+        })?;
         if let Some(selection) = robust
             && (!selection.loop_closures_only || !is_odometry(edge.from, edge.to))
         {

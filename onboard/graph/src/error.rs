@@ -20,4 +20,8 @@ pub enum GraphError {
     NotPositiveDefinite(Key),
     #[error("non-finite value in the estimate of {0:?}")]
     NonFinite(Key),
+    #[error("edge {from} → {to}: {reason} (g2o::parse_with names the file line and can repair it)")]
+    InvalidEdgeNoise { from: u64, to: u64, reason: &'static str },
+    #[error("relative eigenvalue floor must be finite and in (0, 1], got {0}")]
+    InvalidEigenFloor(f64),
 }

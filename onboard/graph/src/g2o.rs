@@ -43,6 +43,19 @@
 //! measurement and vertex has z = roll = pitch = 0, the optimum stays in the plane with the same
 //! x, y, yaw as the 2D optimum.
 //!
+//! # Information that is not positive definite
+//!
+//! [`parse`] takes information matrices as written; the noise model later refuses those that
+//! are not positive definite, without knowing the line. [`parse_with`] tests each edge's matrix
+//! as it is read, with the noise model's own test (its Cholesky factorization), and then either
+//! rejects the file with an error naming the line and the edge ([`InformationPolicy::Reject`],
+//! the default) or replaces the matrix by the nearest one whose eigenvalues are all above a
+//! floor ([`InformationPolicy::Repair`]; the [`crate::information`] module explains the
+//! projection and the floor) and lists the edge in [`CheckedGraph::repaired_edges`]. Published
+//! datasets need this: SE-Sync's cubicle has edges with indefinite information. Matrices that
+//! pass the test are kept bit for bit. An `EDGE_SE2` matrix is tested and repaired as the
+//! file's 3×3 before lifting, so the lifted z, roll and pitch follow the repaired values.
+//!
 //! # Exact round trips
 //!
 //! [`write()`] prints every `f64` with Rust's shortest round-trip formatting, so
@@ -57,6 +70,9 @@ use std::collections::{BTreeMap, BTreeSet, HashSet, VecDeque};
 use std::str::FromStr;
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector3};
+
+use crate::factor::NoiseModel;
+use crate::information::{self, EigenFloor, RepairError};
 
 /// Whether the file described planar (SE(2)) or spatial (SE(3)) poses. Either way the poses in a
 /// [`G2oGraph`] are 3D; this only records what the source was.
@@ -98,6 +114,47 @@ pub struct G2oGraph {
     pub fixed: Vec<u64>,
 }
 
+/// What [`parse_with`] does with an edge whose information matrix is not positive definite.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum InformationPolicy {
+    /// Fail with [`G2oErrorKind::NotPositiveDefinite`] at the first such edge.
+    #[default]
+    Reject,
+    /// Project the matrix onto the nearest one with every eigenvalue above the floor.
+    Repair(EigenFloor),
+}
+
+impl InformationPolicy {
+    /// Repair with the default floor ([`crate::information::DEFAULT_RELATIVE_EIGEN_FLOOR`]).
+    pub fn repair() -> Self {
+        Self::Repair(EigenFloor::default())
+    }
+}
+
+/// An edge whose information [`parse_with`] repaired. Eigenvalues and the change are those of the
+/// matrix as the file states it: 6×6, or 3×3 for `EDGE_SE2`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RepairedEdge {
+    /// 1-based line of the edge record.
+    pub line: usize,
+    pub from: u64,
+    pub to: u64,
+    /// ≤ 0 for the indefinite or semidefinite matrices a repair is for.
+    pub smallest_eigenvalue_before: f64,
+    /// Every eigenvalue of the repaired matrix is at least this.
+    pub eigen_floor: f64,
+    /// `‖repaired − file‖_F`, in the file's information units.
+    pub frobenius_change: f64,
+}
+
+/// A parsed graph, its information matrices all positive definite, and the edges repaired to get
+/// there, in file order.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct CheckedGraph {
+    pub graph: G2oGraph,
+    pub repaired_edges: Vec<RepairedEdge>,
+}
+
 /// A parse failure and the 1-based line it happened on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("line {line}: {kind}")]
@@ -130,6 +187,12 @@ pub enum G2oErrorKind {
     SelfLoop(u64),
     #[error("the file mixes 2D (SE2) and 3D (SE3) records")]
     MixedDimensions,
+    #[error(
+        "edge {from} → {to}: information matrix is not positive definite (smallest eigenvalue {smallest_eigenvalue:e})"
+    )]
+    NotPositiveDefinite { from: u64, to: u64, smallest_eigenvalue: f64 },
+    #[error("edge {from} → {to}: information matrix cannot be repaired: {reason}")]
+    Unrepairable { from: u64, to: u64, reason: RepairError },
 }
 
 /// Failure to derive initial poses from edges.
@@ -168,27 +231,39 @@ const FIELDS_EDGE_SE2: [&str; 11] = ["from", "to", "dx", "dy", "dtheta", "I11", 
 /// Most fields any record has after its tag.
 const MAX_FIELDS: usize = 30;
 
-/// Parses a g2o file. Total: any input gives a graph or an error, never a panic.
+/// Parses a g2o file, information matrices as written (see [`parse_with`] to check them). Total:
+/// any input gives a graph or an error, never a panic.
 pub fn parse(text: &str) -> Result<G2oGraph, G2oError> {
-    let mut builder = Builder::default();
+    read(text, None).map(|checked| checked.graph)
+}
+
+/// Parses a g2o file and applies `policy` to every information matrix that is not positive
+/// definite (module documentation). Total, as [`parse`].
+pub fn parse_with(text: &str, policy: InformationPolicy) -> Result<CheckedGraph, G2oError> {
+    read(text, Some(policy))
+}
+
+fn read(text: &str, policy: Option<InformationPolicy>) -> Result<CheckedGraph, G2oError> {
+    let mut builder = Builder { policy, ..Builder::default() };
     for (index, raw) in text.lines().enumerate() {
         let trimmed = raw.trim_start();
         if trimmed.is_empty() || trimmed.starts_with('#') {
             continue;
         }
+        let line = index + 1;
         let mut tokens = trimmed.split_whitespace();
         let tag = tokens.next().unwrap_or_default();
         let added = match tag {
             "VERTEX_SE3:QUAT" => parse_vertex_se3(tokens).and_then(|v| builder.add_vertex(v, Dimension::Three)),
-            "EDGE_SE3:QUAT" => parse_edge_se3(tokens).and_then(|e| builder.add_edge(e, Dimension::Three)),
+            "EDGE_SE3:QUAT" => parse_edge_se3(tokens).and_then(|e| builder.add_edge(e, None, line)),
             "VERTEX_SE2" => parse_vertex_se2(tokens).and_then(|v| builder.add_vertex(v, Dimension::Two)),
-            "EDGE_SE2" => parse_edge_se2(tokens).and_then(|e| builder.add_edge(e, Dimension::Two)),
+            "EDGE_SE2" => parse_edge_se2(tokens).and_then(|(e, planar)| builder.add_edge(e, Some(planar), line)),
             "VERTEX3" => parse_vertex3(tokens).and_then(|v| builder.add_vertex(v, Dimension::Three)),
-            "EDGE3" => parse_edge3(tokens).and_then(|e| builder.add_edge(e, Dimension::Three)),
+            "EDGE3" => parse_edge3(tokens).and_then(|e| builder.add_edge(e, None, line)),
             "FIX" => parse_fix(tokens).map(|ids| builder.add_fixed(ids)),
             other => Err(G2oErrorKind::UnknownRecord(quote(other))),
         };
-        added.map_err(|kind| G2oError { line: index + 1, kind })?;
+        added.map_err(|kind| G2oError { line, kind })?;
     }
     Ok(builder.finish())
 }
@@ -355,6 +430,9 @@ struct Builder {
     dimension: Option<Dimension>,
     vertex_ids: HashSet<u64>,
     fixed_ids: HashSet<u64>,
+    /// `None`: information is not checked.
+    policy: Option<InformationPolicy>,
+    repaired_edges: Vec<RepairedEdge>,
 }
 
 impl Builder {
@@ -367,10 +445,45 @@ impl Builder {
         Ok(())
     }
 
-    fn add_edge(&mut self, edge: G2oEdge, dimension: Dimension) -> Result<(), G2oErrorKind> {
-        self.check_dimension(dimension)?;
+    /// `planar` is the file's 3×3 information of an `EDGE_SE2`, which `edge` carries lifted.
+    fn add_edge(&mut self, mut edge: G2oEdge, planar: Option<Matrix3<f64>>, line: usize) -> Result<(), G2oErrorKind> {
+        self.check_dimension(if planar.is_some() { Dimension::Two } else { Dimension::Three })?;
         if edge.from == edge.to {
             return Err(G2oErrorKind::SelfLoop(edge.from));
+        }
+        if let Some(policy) = self.policy
+            && !accepted_by_noise_model(&edge.information)
+        {
+            let (from, to) = (edge.from, edge.to);
+            let unrepairable = |reason| G2oErrorKind::Unrepairable { from, to, reason };
+            let floor = match policy {
+                InformationPolicy::Reject => {
+                    let smallest = match planar {
+                        Some(planar) => information::smallest_eigenvalue3(&planar),
+                        None => information::smallest_eigenvalue6(&edge.information),
+                    };
+                    let smallest_eigenvalue = smallest.ok_or(unrepairable(RepairError::NoConvergence))?;
+                    return Err(G2oErrorKind::NotPositiveDefinite { from, to, smallest_eigenvalue });
+                }
+                InformationPolicy::Repair(floor) => floor,
+            };
+            let repaired = match planar {
+                Some(planar) => information::repair3(&planar, floor).map(|r| r.map(|m| lift_information(&m))),
+                None => information::repair6(&edge.information, floor),
+            }
+            .map_err(unrepairable)?;
+            if !accepted_by_noise_model(&repaired.matrix) {
+                return Err(unrepairable(RepairError::Overflow));
+            }
+            edge.information = repaired.matrix;
+            self.repaired_edges.push(RepairedEdge {
+                line,
+                from,
+                to,
+                smallest_eigenvalue_before: repaired.smallest_eigenvalue_before,
+                eigen_floor: repaired.eigen_floor,
+                frobenius_change: repaired.frobenius_change,
+            });
         }
         self.graph.edges.push(edge);
         Ok(())
@@ -393,8 +506,11 @@ impl Builder {
         Ok(())
     }
 
-    fn finish(self) -> G2oGraph {
-        G2oGraph { dimension: self.dimension.unwrap_or_default(), ..self.graph }
+    fn finish(self) -> CheckedGraph {
+        CheckedGraph {
+            graph: G2oGraph { dimension: self.dimension.unwrap_or_default(), ..self.graph },
+            repaired_edges: self.repaired_edges,
+        }
     }
 }
 
@@ -522,7 +638,8 @@ fn parse_vertex_se2<'a>(tokens: impl Iterator<Item = &'a str>) -> Result<G2oVert
     Ok(G2oVertex { id, pose: planar_pose(x, y, theta)? })
 }
 
-fn parse_edge_se2<'a>(tokens: impl Iterator<Item = &'a str>) -> Result<G2oEdge, G2oErrorKind> {
+/// The edge with its information lifted to 6×6, and the file's 3×3 information.
+fn parse_edge_se2<'a>(tokens: impl Iterator<Item = &'a str>) -> Result<(G2oEdge, Matrix3<f64>), G2oErrorKind> {
     let mut fields = Fields::new("EDGE_SE2", &FIELDS_EDGE_SE2, tokens)?;
     let (from, to) = (fields.id()?, fields.id()?);
     let (x, y, theta) = (fields.number()?, fields.number()?, fields.number()?);
@@ -534,7 +651,8 @@ fn parse_edge_se2<'a>(tokens: impl Iterator<Item = &'a str>) -> Result<G2oEdge, 
             planar[(col, row)] = value;
         }
     }
-    Ok(G2oEdge { from, to, measurement: planar_pose(x, y, theta)?, information: lift_information(&planar) })
+    let edge = G2oEdge { from, to, measurement: planar_pose(x, y, theta)?, information: lift_information(&planar) };
+    Ok((edge, planar))
 }
 
 fn parse_fix<'a>(tokens: impl Iterator<Item = &'a str>) -> Result<Vec<u64>, G2oErrorKind> {
@@ -545,6 +663,12 @@ fn parse_fix<'a>(tokens: impl Iterator<Item = &'a str>) -> Result<Vec<u64>, G2oE
         return Err(G2oErrorKind::MissingField { record: "FIX", field: "id", expected: 1, found: 0 });
     }
     Ok(ids)
+}
+
+/// Whether the noise model will take `information`: the reader's test must be the noise model's
+/// own, or a matrix could pass here and still fail, unlabelled, when the problem is built.
+fn accepted_by_noise_model(information: &Matrix6<f64>) -> bool {
+    NoiseModel::from_information(*information).is_ok()
 }
 
 /// Axes of the lifted 6×6 information (`[x, y, z, roll, pitch, yaw]`) that the planar

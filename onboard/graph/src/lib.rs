@@ -20,6 +20,7 @@ pub mod error;
 pub mod factor;
 pub mod g2o;
 pub mod incremental;
+pub mod information;
 #[cfg(test)]
 mod jacobian_checks;
 mod linear;
