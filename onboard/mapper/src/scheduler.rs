@@ -86,6 +86,40 @@ pub struct AttemptRecord {
     pub times: crate::matching::StageTimes,
 }
 
+impl AttemptRecord {
+    /// The record of matching `pair` (target = a = first, source = b = second) from the prior
+    /// `prior_t_a_b` with uncertainty `delta_sigma_m`: an accepted match maps b's coordinates
+    /// into a's; a rejection keeps its name.
+    pub fn new(
+        pair: SubmapPair,
+        started_ns: u64,
+        prior_t_a_b: Isometry3<f64>,
+        delta_sigma_m: Vector3<f64>,
+        report: &crate::matching::MatchReport,
+    ) -> AttemptRecord {
+        let result = match &report.outcome {
+            Ok(found) => Ok(SubmapMatch {
+                a: pair.first(),
+                b: pair.second(),
+                t_a_b: found.t_target_source,
+                covariance: found.covariance,
+            }),
+            Err(rejection) => Err(rejection.name()),
+        };
+        AttemptRecord {
+            pair,
+            started_ns,
+            prior_t_a_b,
+            delta_sigma_m,
+            result,
+            rmse_m: report.outcome.as_ref().ok().map(|f| f.rmse_m),
+            correspondences: report.correspondences,
+            hypotheses: report.hypotheses,
+            times: report.times,
+        }
+    }
+}
+
 /// Counters of the scheduler.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct SchedulerStats {
@@ -295,39 +329,18 @@ impl MatchScheduler {
             return;
         };
         self.stats.attempts += 1;
-        let report = done.report;
-        let result = match &report.outcome {
-            Ok(found) => {
-                self.stats.accepted += 1;
-                // Target = a (first), source = b (second): t_a_b maps b's coordinates into a's.
-                Ok(SubmapMatch {
-                    a: flight.pair.first(),
-                    b: flight.pair.second(),
-                    t_a_b: found.t_target_source,
-                    covariance: found.covariance,
-                })
-            }
-            Err(rejection) => {
-                *self.stats.rejected.entry(rejection.name()).or_default() += 1;
-                Err(rejection.name())
-            }
-        };
-        let outcome = if result.is_ok() { AttemptOutcome::Matched } else { AttemptOutcome::Failed };
+        let record =
+            AttemptRecord::new(flight.pair, flight.started_ns, flight.prior_t_a_b, flight.delta_sigma_m, &done.report);
+        match record.result {
+            Ok(_) => self.stats.accepted += 1,
+            Err(name) => *self.stats.rejected.entry(name).or_default() += 1,
+        }
+        let outcome = if record.result.is_ok() { AttemptOutcome::Matched } else { AttemptOutcome::Failed };
         out.push(Measurement::Attempt(MatchAttempt { pair: flight.pair, by: self.own, outcome }));
-        if let Ok(m) = &result {
+        if let Ok(m) = &record.result {
             out.push(Measurement::Match(*m));
         }
-        self.log.push(AttemptRecord {
-            pair: flight.pair,
-            started_ns: flight.started_ns,
-            prior_t_a_b: flight.prior_t_a_b,
-            delta_sigma_m: flight.delta_sigma_m,
-            result,
-            rmse_m: report.outcome.as_ref().ok().map(|f| f.rmse_m),
-            correspondences: report.correspondences,
-            hypotheses: report.hypotheses,
-            times: report.times,
-        });
+        self.log.push(record);
     }
 
     /// Ranks the open pairs this robot owns among the suitable submaps of connected robots.

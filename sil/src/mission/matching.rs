@@ -117,33 +117,12 @@ impl OtherMode {
             let report = mapper::matching::match_clouds(&source, &target, Some(prior), params);
             other.attempts += 1;
             other.total_s += report.times.total_s;
-            let result = match &report.outcome {
-                Ok(found) => {
-                    other.accepted += 1;
-                    Ok(mapper::slam::SubmapMatch {
-                        a: pair.first(),
-                        b: pair.second(),
-                        t_a_b: found.t_target_source,
-                        covariance: found.covariance,
-                    })
-                }
-                Err(rejection) => {
-                    *other.rejected.entry(rejection.name().to_owned()).or_default() += 1;
-                    Err(rejection.name())
-                }
-            };
-            other.outcomes.push((*pair, result.as_ref().map_or_else(|name| *name, |_| "accepted")));
-            let record = AttemptRecord {
-                pair: *pair,
-                started_ns: 0,
-                prior_t_a_b: prior.t_target_source,
-                delta_sigma_m: prior.delta_sigma_m,
-                result,
-                rmse_m: report.outcome.as_ref().ok().map(|f| f.rmse_m),
-                correspondences: report.correspondences,
-                hypotheses: report.hypotheses,
-                times: report.times,
-            };
+            let record = AttemptRecord::new(*pair, 0, prior.t_target_source, prior.delta_sigma_m, &report);
+            match record.result {
+                Ok(_) => other.accepted += 1,
+                Err(name) => *other.rejected.entry(name.to_owned()).or_default() += 1,
+            }
+            other.outcomes.push((*pair, record.result.as_ref().map_or_else(|name| *name, |_| "accepted")));
             other.scores.extend(score(&record, true_origin));
         }
         other
