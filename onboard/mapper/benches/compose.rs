@@ -108,10 +108,13 @@ fn main() {
     let (finished, (current, t_current)) = build_submaps(if full { usize::MAX } else { 8 });
     let source_leaves: usize = finished.iter().map(|(s, _)| s.occupancy.len()).sum::<usize>() + current.occupancy.len();
     let source_points: usize = finished.iter().map(|(s, _)| s.cloud.len()).sum::<usize>() + current.cloud.len();
+    let source_bricks: usize =
+        finished.iter().map(|(s, _)| s.occupancy.brick_count()).sum::<usize>() + current.occupancy.brick_count();
     println!(
-        "compose: KITTI straight, {} finished submaps + current, {source_leaves} source leaves, {source_points} \
-         source points (built in {:.1} s)",
+        "compose: KITTI straight, {} finished submaps + current, {source_leaves} source leaves in {source_bricks} \
+         bricks of 8³ ({:.0} % full), {source_points} source points (built in {:.1} s)",
         finished.len(),
+        100.0 * source_leaves as f64 / (source_bricks * 512) as f64,
         started.elapsed().as_secs_f64()
     );
 
@@ -140,9 +143,10 @@ fn main() {
     assert!(digests.iter().all(|d| *d == digests[0]), "compositions differ: {digests:x?}");
     assert_eq!(digests[0].0, digests[0].1, "cached composition differs from the first");
     println!(
-        "composed: {} cloud points, {} occupancy leaves ({} occupied), digest {:016x}",
+        "composed: {} cloud points, {} occupancy leaves ({} bricks, {} occupied), digest {:016x}",
         c.cloud.len(),
         c.occupancy.len(),
+        c.occupancy.brick_count(),
         c.occupancy.occupied_count(),
         digests[0].0
     );
