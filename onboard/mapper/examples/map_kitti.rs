@@ -10,26 +10,11 @@ use common::{BoxError, HeightConsistency, StereoDepth};
 use hal::kitti::KittiDataset;
 use hal::sensor::StereoFrame;
 use mapper::integrate::IntegratorConfig;
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, Vector3};
 
 const KITTI: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/stereo_sequences/kitti_straight");
 /// KITTI's camera height above the road.
 const CAMERA_HEIGHT_M: f64 = 1.65;
-
-/// `poses.txt`: per frame the 3×4 row-major pose of the left camera in the first camera's frame.
-fn read_poses(text: &str) -> Result<Vec<Isometry3<f64>>, BoxError> {
-    let mut poses = Vec::new();
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        let v: Vec<f64> = line.split_whitespace().map(str::parse).collect::<Result<_, _>>()?;
-        if v.len() != 12 {
-            return Err(format!("pose line with {} values", v.len()).into());
-        }
-        let r = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
-        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
-        poses.push(Isometry3::from_parts(Translation3::new(v[3], v[7], v[11]), rotation));
-    }
-    Ok(poses)
-}
 
 fn main() -> Result<(), BoxError> {
     let out = common::out_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/docs"));
@@ -37,7 +22,7 @@ fn main() -> Result<(), BoxError> {
     let mut dataset = KittiDataset::open(KITTI)?;
     let calibration = *dataset.calibration();
     let geometry = common::geometry_of(&calibration);
-    let poses = read_poses(&std::fs::read_to_string(format!("{KITTI}/poses.txt"))?)?;
+    let poses = common::read_kitti_poses(&std::fs::read_to_string(format!("{KITTI}/poses.txt"))?)?;
     // World: the first camera's frame turned to x forward, y left, z up (the camera is level).
     let t_world_first = Isometry3::from_parts(Translation3::identity(), calibration.left.t_body_cam.rotation);
     let t_world_cam: Vec<Isometry3<f64>> = poses.iter().map(|p| t_world_first * p).collect();

@@ -90,8 +90,16 @@ impl Hasher for VoxelHasher {
         self.0 ^ (self.0 >> 29)
     }
 
+    /// Four bytes per round: `[i32; 3]` keys arrive here as one 12-byte slice, and byte by byte
+    /// that was 12 dependent multiplies per key.
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
+        let mut words = bytes.chunks_exact(4);
+        for w in &mut words {
+            if let Ok(w) = <[u8; 4]>::try_from(w) {
+                self.write_u64(u64::from(u32::from_le_bytes(w)));
+            }
+        }
+        for &b in words.remainder() {
             self.write_u64(u64::from(b));
         }
     }

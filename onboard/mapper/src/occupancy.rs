@@ -2,7 +2,8 @@
 //!
 //! Leaves hold log-odds `L = ln(p / (1 − p))` (prior p = 0.5, L = 0), updated additively with
 //! +0.85 for a hit and −0.4 for a miss and clamped to [−2, 3.5] (eqs. 5.7–5.9). In memory the
-//! leaf level is a hash of voxel keys (O(1) updates for ray casting); the octree structure is
+//! leaf level is a hash of 8×8×8-leaf dense bricks (O(1) updates for ray casting, neighbours in
+//! one brick, whole bricks summed and copied by the global composition); the octree structure is
 //! materialized where it matters: pruning of stable (clamped) children, the exchange encoding and
 //! the OctoMap `.bt` export.
 //!
@@ -55,17 +56,195 @@ pub enum Occupancy {
     Occupied,
 }
 
+/// Edge of a brick in leaves (a power of two): leaf `k` lies in brick `k >> BRICK_BITS` per axis.
+pub(crate) const BRICK_BITS: u32 = 3;
+pub(crate) const BRICK_EDGE: i32 = 1 << BRICK_BITS;
+pub(crate) const BRICK_CELLS: usize = (BRICK_EDGE * BRICK_EDGE * BRICK_EDGE) as usize;
+
+/// The brick holding leaf `key` and the leaf's cell in it (x fastest).
+#[inline]
+pub(crate) fn brick_of(key: &VoxelKey) -> (VoxelKey, usize) {
+    let brick = [key[0] >> BRICK_BITS, key[1] >> BRICK_BITS, key[2] >> BRICK_BITS];
+    let m = BRICK_EDGE - 1;
+    let cell = ((key[2] & m) << (2 * BRICK_BITS)) | ((key[1] & m) << BRICK_BITS) | (key[0] & m);
+    (brick, cell as usize)
+}
+
+/// The leaf at `cell` of `brick` (inverse of [`brick_of`]).
+#[inline]
+pub(crate) fn leaf_of(brick: &VoxelKey, cell: usize) -> VoxelKey {
+    let m = BRICK_EDGE as usize - 1;
+    let (x, y, z) = (cell & m, (cell >> BRICK_BITS) & m, cell >> (2 * BRICK_BITS));
+    [(brick[0] << BRICK_BITS) + x as i32, (brick[1] << BRICK_BITS) + y as i32, (brick[2] << BRICK_BITS) + z as i32]
+}
+
+/// 8×8×8 leaves, dense: a known bit and a log-odds value per cell (the value of an unknown cell
+/// is meaningless).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Brick {
+    pub(crate) known: [u64; BRICK_CELLS / 64],
+    pub(crate) log_odds: [f32; BRICK_CELLS],
+}
+
+impl Brick {
+    pub(crate) const EMPTY: Brick = Brick { known: [0; BRICK_CELLS / 64], log_odds: [0.0; BRICK_CELLS] };
+
+    #[inline]
+    pub(crate) fn is_known(&self, cell: usize) -> bool {
+        self.known[cell / 64] >> (cell % 64) & 1 == 1
+    }
+
+    #[inline]
+    pub(crate) fn get(&self, cell: usize) -> Option<f32> {
+        self.is_known(cell).then(|| self.log_odds[cell])
+    }
+
+    #[inline]
+    pub(crate) fn set(&mut self, cell: usize, log_odds: f32) {
+        self.known[cell / 64] |= 1 << (cell % 64);
+        self.log_odds[cell] = log_odds;
+    }
+
+    pub(crate) fn count(&self) -> usize {
+        self.known.iter().map(|w| w.count_ones() as usize).sum()
+    }
+
+    /// Known cells with their values, in cell order.
+    pub(crate) fn cells(&self) -> impl Iterator<Item = (usize, f32)> + '_ {
+        self.known.iter().enumerate().flat_map(move |(w, &bits)| {
+            let mut bits = bits;
+            std::iter::from_fn(move || {
+                (bits != 0).then(|| {
+                    let cell = w * 64 + bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    (cell, self.log_odds[cell])
+                })
+            })
+        })
+    }
+}
+
+/// A sparse grid of leaf values stored in dense 8×8×8 bricks found through a hash of brick keys.
+/// Neighbouring leaves share a brick, so ray casting and resampling mostly touch memory they
+/// just used, and whole bricks can be summed or copied without hashing every leaf (the
+/// composition of a team's map has millions of leaves). Bricks are never removed: one whose
+/// cells all became unknown stays allocated and empty.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct BrickGrid {
+    index: HashMap<VoxelKey, u32, VoxelBuildHasher>,
+    keys: Vec<VoxelKey>,
+    bricks: Vec<Brick>,
+    /// Known cells over all bricks.
+    len: usize,
+}
+
+impl BrickGrid {
+    pub(crate) fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Slot of a brick, if allocated.
+    #[inline]
+    pub(crate) fn slot(&self, brick: &VoxelKey) -> Option<usize> {
+        self.index.get(brick).map(|&i| i as usize)
+    }
+
+    /// Slot of a brick, allocated empty if new.
+    #[inline]
+    pub(crate) fn slot_or_insert(&mut self, brick: VoxelKey) -> usize {
+        let next = self.bricks.len();
+        let slot = *self.index.entry(brick).or_insert(next as u32) as usize;
+        if slot == next {
+            self.keys.push(brick);
+            self.bricks.push(Brick::EMPTY);
+        }
+        slot
+    }
+
+    #[inline]
+    pub(crate) fn brick(&self, slot: usize) -> &Brick {
+        &self.bricks[slot]
+    }
+
+    pub(crate) fn brick_count(&self) -> usize {
+        self.bricks.len()
+    }
+
+    /// Brick keys and bricks in slot order (allocation order).
+    pub(crate) fn bricks(&self) -> impl Iterator<Item = (&VoxelKey, &Brick)> + '_ {
+        self.keys.iter().zip(&self.bricks)
+    }
+
+    /// Changes the brick at `slot` through `f`, keeping the leaf count.
+    #[inline]
+    pub(crate) fn update(&mut self, slot: usize, f: impl FnOnce(&mut Brick)) {
+        let b = &mut self.bricks[slot];
+        let before = b.count();
+        f(b);
+        self.len = self.len + b.count() - before;
+    }
+
+    #[inline]
+    pub(crate) fn get(&self, key: &VoxelKey) -> Option<f32> {
+        let (brick, cell) = brick_of(key);
+        self.bricks[self.slot(&brick)?].get(cell)
+    }
+
+    /// Sets a leaf (no clamping).
+    #[inline]
+    pub(crate) fn set(&mut self, key: VoxelKey, log_odds: f32) {
+        let (brick, cell) = brick_of(&key);
+        let slot = self.slot_or_insert(brick);
+        let b = &mut self.bricks[slot];
+        self.len += usize::from(!b.is_known(cell));
+        b.set(cell, log_odds);
+    }
+
+    /// Sets cell `cell` of the brick at `slot` (no clamping).
+    #[inline]
+    pub(crate) fn set_at(&mut self, slot: usize, cell: usize, log_odds: f32) {
+        let b = &mut self.bricks[slot];
+        self.len += usize::from(!b.is_known(cell));
+        b.set(cell, log_odds);
+    }
+
+    /// Known leaves, brick by brick.
+    pub(crate) fn iter(&self) -> impl Iterator<Item = (VoxelKey, f32)> + '_ {
+        self.bricks().flat_map(|(brick, b)| b.cells().map(move |(cell, l)| (leaf_of(brick, cell), l)))
+    }
+}
+
 /// Leaf log-odds keyed by voxel.
-#[derive(Debug, Clone, PartialEq, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct OccupancyMap {
     pub resolution_m: f64,
     pub params: OccupancyParams,
-    cells: HashMap<VoxelKey, f32, VoxelBuildHasher>,
+    cells: BrickGrid,
+}
+
+/// Two maps are equal when their parameters and leaves are, whatever order the leaves were
+/// inserted in (which decides the brick layout).
+impl PartialEq for OccupancyMap {
+    fn eq(&self, other: &OccupancyMap) -> bool {
+        self.resolution_m == other.resolution_m
+            && self.params == other.params
+            && self.len() == other.len()
+            && self.iter().all(|(k, l)| other.log_odds(&k) == Some(l))
+    }
 }
 
 impl OccupancyMap {
     pub fn new(resolution_m: f64, params: OccupancyParams) -> OccupancyMap {
-        OccupancyMap { resolution_m, params, cells: HashMap::default() }
+        OccupancyMap { resolution_m, params, cells: BrickGrid::default() }
+    }
+
+    /// A map over already clamped leaves.
+    pub(crate) fn from_grid(resolution_m: f64, params: OccupancyParams, cells: BrickGrid) -> OccupancyMap {
+        OccupancyMap { resolution_m, params, cells }
+    }
+
+    pub(crate) fn grid(&self) -> &BrickGrid {
+        &self.cells
     }
 
     /// Voxel containing the point `(x, y, z)` (metres, map frame).
@@ -81,13 +260,13 @@ impl OccupancyMap {
     }
 
     pub fn log_odds(&self, key: &VoxelKey) -> Option<f32> {
-        self.cells.get(key).copied()
+        self.cells.get(key)
     }
 
     pub fn occupancy(&self, key: &VoxelKey) -> Occupancy {
         match self.cells.get(key) {
             None => Occupancy::Unknown,
-            Some(&l) if l > self.params.occupied_log_odds => Occupancy::Occupied,
+            Some(l) if l > self.params.occupied_log_odds => Occupancy::Occupied,
             Some(_) => Occupancy::Free,
         }
     }
@@ -95,19 +274,21 @@ impl OccupancyMap {
     /// Sets a leaf's log-odds (clamped); used by decoders and merges.
     pub fn set_log_odds(&mut self, key: VoxelKey, log_odds: f32) {
         let l = log_odds.clamp(self.params.min_log_odds, self.params.max_log_odds);
-        self.cells.insert(key, l);
+        self.cells.set(key, l);
     }
 
     /// Adds `delta` to a leaf (unknown counts as 0) and clamps (eq. 5.9).
     pub fn add_log_odds(&mut self, key: VoxelKey, delta: f32) {
         let (lo, hi) = (self.params.min_log_odds, self.params.max_log_odds);
-        let l = self.cells.entry(key).or_insert(0.0);
-        *l = (*l + delta).clamp(lo, hi);
+        let (brick, cell) = brick_of(&key);
+        let slot = self.cells.slot_or_insert(brick);
+        let l = self.cells.brick(slot).get(cell).unwrap_or(0.0);
+        self.cells.set_at(slot, cell, (l + delta).clamp(lo, hi));
     }
 
     /// Known leaves in unspecified order.
     pub fn iter(&self) -> impl Iterator<Item = (VoxelKey, f32)> + '_ {
-        self.cells.iter().map(|(k, l)| (*k, *l))
+        self.cells.iter()
     }
 
     pub fn len(&self) -> usize {
@@ -115,11 +296,16 @@ impl OccupancyMap {
     }
 
     pub fn is_empty(&self) -> bool {
-        self.cells.is_empty()
+        self.cells.len() == 0
+    }
+
+    /// Allocated 8×8×8-leaf bricks (memory: about 2.1 kB each).
+    pub fn brick_count(&self) -> usize {
+        self.cells.brick_count()
     }
 
     pub fn occupied_count(&self) -> usize {
-        self.cells.values().filter(|&&l| l > self.params.occupied_log_odds).count()
+        self.iter().filter(|&(_, l)| l > self.params.occupied_log_odds).count()
     }
 
     /// Whether `log_odds` sits at a clamping bound: such a leaf stays put under further updates
@@ -146,7 +332,7 @@ impl OccupancyMap {
                         i32::try_from(base[1] + dy).ok()?,
                         i32::try_from(base[2] + dz).ok()?,
                     ];
-                    let l = *self.cells.get(&leaf)?;
+                    let l = self.cells.get(&leaf)?;
                     if !self.stable_value(l) || value.is_some_and(|v| v != l) {
                         return None;
                     }
@@ -163,7 +349,7 @@ impl OccupancyMap {
         let mut parents: Vec<VoxelKey> = self
             .cells
             .iter()
-            .filter(|(_, l)| self.stable_value(**l))
+            .filter(|(_, l)| self.stable_value(*l))
             .map(|(k, _)| [k[0] >> 1, k[1] >> 1, k[2] >> 1])
             .collect();
         parents.sort_unstable();

@@ -12,6 +12,9 @@ use mapper::submap::Submap;
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector3};
 use sim::terrain::{Terrain, TerrainConfig};
 
+#[path = "common/reference_compose.rs"]
+mod reference_compose;
+
 fn terrain() -> Terrain {
     Terrain::generate(&TerrainConfig::moon().with_size(30.0), 7)
 }
@@ -268,4 +271,55 @@ fn current_submap_is_merged_but_never_cached() {
     // Removing a submap re-sums its voxels.
     assert!(map.remove((1, 1)));
     assert_eq!(map.compose(None).cloud, fresh(&submaps[..1]).cloud);
+}
+
+/// `c` equals the plain reference composition of `submaps` (composition order), bit for bit.
+fn assert_equals_reference(c: &Composition, submaps: &[(&Submap, Isometry3<f64>)]) {
+    let (cloud, occupancy) = reference_compose::reference_compose(submaps, &GlobalMapConfig::default());
+    assert_eq!(c.cloud.points.len(), cloud.points.len());
+    for (a, b) in c.cloud.points.iter().zip(&cloud.points) {
+        let bits = |p: &MapPoint| (p.position_m.coords.map(f32::to_bits), p.intensity, p.obstacle);
+        assert_eq!(bits(a), bits(b));
+    }
+    assert_eq!(c.occupancy.len(), occupancy.len());
+    for (k, l) in c.occupancy.iter() {
+        assert_eq!(Some(l.to_bits()), occupancy.get(&k).map(|r| r.to_bits()), "voxel {k:?}");
+    }
+}
+
+#[test]
+fn composition_equals_the_plain_reference_bit_for_bit() {
+    let terrain = terrain();
+    let mut submaps = three_submaps(&terrain);
+    // A tilted current submap: resampling then crosses bricks on every axis.
+    let t_tilted = Isometry3::from_parts(
+        Translation3::new(0.5, -2.0, 0.05),
+        UnitQuaternion::from_euler_angles(3f64.to_radians(), -2f64.to_radians(), 118f64.to_radians()),
+    );
+    let current = submap_of(&terrain, 3, &t_tilted, 2.5);
+    let mut map = GlobalMap::new(GlobalMapConfig::default());
+    for (s, t) in &submaps {
+        map.insert(Arc::clone(s), *t);
+    }
+    fn all<'a>(
+        submaps: &'a [(Arc<Submap>, Isometry3<f64>)],
+        current: &'a Submap,
+        t_current: Isometry3<f64>,
+    ) -> Vec<(&'a Submap, Isometry3<f64>)> {
+        submaps.iter().map(|(s, t)| (s.as_ref(), *t)).chain([(current, t_current)]).collect()
+    }
+    let first = map.compose(Some((&current, &t_tilted)));
+    assert!(first.occupancy.len() > 10_000 && first.cloud.len() > 10_000);
+    assert_equals_reference(&first, &all(&submaps, &current, t_tilted));
+
+    // One submap moved (cached re-sum of its bricks only), then one removed.
+    let moved = pose(-0.7, 0.6, 35.0);
+    submaps[1].1 = moved;
+    assert!(map.set_pose((1, 1), moved));
+    let after_move = map.compose(Some((&current, &t_tilted)));
+    assert_eq!(after_move.stats.recomposed_submaps, 1);
+    assert_equals_reference(&after_move, &all(&submaps, &current, t_tilted));
+    assert!(map.remove((1, 0)));
+    submaps.remove(0);
+    assert_equals_reference(&map.compose(Some((&current, &t_tilted))), &all(&submaps, &current, t_tilted));
 }

@@ -8,7 +8,7 @@ use std::path::Path;
 use fpga_model::SgmConfig;
 use hal::sensor::{StereoCalibration, StereoFrame};
 use mapper::cloud::MapPoint;
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use vision::depth::{DepthImage, StereoGeometry};
 use vision::{DepthOptions, DepthPipeline};
 
@@ -491,4 +491,19 @@ impl SubmapRun {
         let t = self.t_world_current;
         self.global.compose(Some((&self.current, &t)))
     }
+}
+
+/// KITTI `poses.txt`: per frame the 3×4 row-major pose of the left camera in the first camera's frame.
+pub fn read_kitti_poses(text: &str) -> Result<Vec<Isometry3<f64>>, BoxError> {
+    let mut poses = Vec::new();
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let v: Vec<f64> = line.split_whitespace().map(str::parse).collect::<Result<_, _>>()?;
+        if v.len() != 12 {
+            return Err(format!("pose line with {} values", v.len()).into());
+        }
+        let r = Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+        let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
+        poses.push(Isometry3::from_parts(Translation3::new(v[3], v[7], v[11]), rotation));
+    }
+    Ok(poses)
 }
