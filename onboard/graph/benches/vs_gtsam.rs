@@ -5,7 +5,8 @@
 //! process start-up, no file parsing, no problem set-up).
 //!
 //! `cargo bench -p posegraph --bench vs_gtsam [-- NAME...]`: the full tables; NAME arguments
-//! keep only the datasets whose name contains one of them (e.g. `-- sphere2500`). Without
+//! keep only the datasets whose name contains one of them (e.g. `-- sphere2500`), and the
+//! words `batch`, `incremental` and `marginals` keep only those sections. Without
 //! `--bench` (as `cargo test --all-targets` runs it): a smoke run of every step on the small
 //! graphs, one repetition each.
 
@@ -206,6 +207,7 @@ fn print_batch(rows: &[BatchRow], runs: usize) {
 // ------------------------------------------------------------------------------------------------
 
 struct IncrementalRun {
+    mean_ms: f64,
     median_ms: f64,
     p95_ms: f64,
     max_ms: f64,
@@ -242,6 +244,7 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
         reeliminated += stats.reeliminated_variables as u64;
     }
     let ours = IncrementalRun {
+        mean_ms: times.iter().sum::<f64>() / times.len().max(1) as f64,
         median_ms: median(&times),
         p95_ms: percentile(&times, 95.0),
         max_ms: times.iter().copied().fold(0.0, f64::max),
@@ -264,7 +267,9 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
         &skip,
     ])?;
     let count = |name: &str| json[name].as_u64().ok_or_else(|| format!("no count `{name}` in the script's JSON"));
+    let updates = json["updates"].as_u64().ok_or("no count `updates` in the script's JSON")?;
     let gtsam_run = IncrementalRun {
+        mean_ms: field(&json, "total_ms")? / updates.max(1) as f64,
         median_ms: field(&json, "median_update_ms")?,
         p95_ms: field(&json, "p95_update_ms")?,
         max_ms: field(&json, "max_update_ms")?,
@@ -283,15 +288,16 @@ fn print_incremental(rows: &[IncrementalRow]) {
         params.relinearize_threshold, params.relinearize_skip, params.wildfire_threshold
     );
     println!(
-        "| dataset | updates | solver | median ms | p95 ms | max ms | total ms | final cost | relinearized | re-eliminated |"
+        "| dataset | updates | solver | mean ms | median ms | p95 ms | max ms | total ms | final cost | relinearized | re-eliminated |"
     );
-    println!("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         for (solver, t) in [("ours", &r.ours), ("GTSAM iSAM2", &r.gtsam)] {
             println!(
-                "| {} | {} | {solver} | {:.3} | {:.3} | {:.3} | {:.1} | {:.10} | {} | {} |",
+                "| {} | {} | {solver} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {:.10} | {} | {} |",
                 r.name,
                 r.updates,
+                t.mean_ms,
                 t.median_ms,
                 t.p95_ms,
                 t.max_ms,
@@ -305,8 +311,10 @@ fn print_incremental(rows: &[IncrementalRow]) {
     println!();
     for r in rows {
         println!(
-            "incremental {}: GTSAM/ours median {:.2}x, p95 {:.2}x, max {:.2}x, total {:.2}x; final cost ours vs GTSAM {:+.2e} relative",
+            "incremental {}: ours mean {:.3} ms, max {:.3} ms; GTSAM/ours median {:.2}x, p95 {:.2}x, max {:.2}x, total {:.2}x; final cost ours vs GTSAM {:+.2e} relative",
             r.name,
+            r.ours.mean_ms,
+            r.ours.max_ms,
             r.gtsam.median_ms / r.ours.median_ms,
             r.gtsam.p95_ms / r.ours.p95_ms,
             r.gtsam.max_ms / r.ours.max_ms,
@@ -404,9 +412,21 @@ fn print_marginals(rows: &[MarginalRow], runs: usize) {
 
 // ------------------------------------------------------------------------------------------------
 
-/// Datasets of `all` whose name contains one of `filters` (all of them without filters).
-fn selected(all: &[&'static str], filters: &[String]) -> Vec<&'static str> {
-    all.iter().copied().filter(|name| filters.is_empty() || filters.iter().any(|f| name.contains(f.as_str()))).collect()
+/// The benchmark's sections, selectable by name on the command line.
+const SECTIONS: [&str; 3] = ["batch", "incremental", "marginals"];
+
+/// Datasets of `all` whose name contains one of `filters` (all of them without dataset filters),
+/// or none if sections are named and `section` is not among them.
+fn selected(section: &str, all: &[&'static str], filters: &[String]) -> Vec<&'static str> {
+    let (sections, datasets): (Vec<&String>, Vec<&String>) =
+        filters.iter().partition(|f| SECTIONS.contains(&f.as_str()));
+    if !sections.is_empty() && !sections.iter().any(|s| s.as_str() == section) {
+        return Vec::new();
+    }
+    all.iter()
+        .copied()
+        .filter(|name| datasets.is_empty() || datasets.iter().any(|f| name.contains(f.as_str())))
+        .collect()
 }
 
 fn run(full: bool, filters: &[String]) -> Result<(), String> {
@@ -417,11 +437,16 @@ fn run(full: bool, filters: &[String]) -> Result<(), String> {
     } else {
         (&SMOKE_BATCH_DATASETS, &SMOKE_INCREMENTAL_DATASETS, &SMOKE_MARGINAL_DATASETS)
     };
-    let (batch_sets, incremental_sets, marginal_sets) =
-        (selected(batch_sets, filters), selected(incremental_sets, filters), selected(marginal_sets, filters));
+    let (batch_sets, incremental_sets, marginal_sets) = (
+        selected("batch", batch_sets, filters),
+        selected("incremental", incremental_sets, filters),
+        selected("marginals", marginal_sets, filters),
+    );
     if batch_sets.is_empty() && incremental_sets.is_empty() && marginal_sets.is_empty() {
         if full {
-            return Err(format!("no dataset matches {filters:?}; the datasets are {BATCH_DATASETS:?}"));
+            return Err(format!(
+                "no dataset matches {filters:?}; the datasets are {BATCH_DATASETS:?}, the sections {SECTIONS:?}"
+            ));
         }
         // `cargo test -- some_test_name` reaches this binary too: nothing of ours was asked for.
         return Ok(());
