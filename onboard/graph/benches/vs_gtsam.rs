@@ -220,14 +220,17 @@ struct IncrementalRun {
 
 struct IncrementalRow {
     name: &'static str,
+    /// Both sides with the partial relinearization check (GTSAM's
+    /// `enablePartialRelinearizationCheck`) instead of checking every variable.
+    partial_check: bool,
     updates: usize,
     ours: IncrementalRun,
     gtsam: IncrementalRun,
 }
 
-fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, String> {
+fn incremental(name: &'static str, gtsam: &Gtsam, partial_check: bool) -> Result<IncrementalRow, String> {
     let problem = load(name)?;
-    let params = IsamParams::default();
+    let params = IsamParams { partial_relinearization_check: partial_check, ..IsamParams::default() };
     // Fed as the script feeds ISAM2: pose by pose in id order, with every factor whose latest
     // pose it is, initialised at estimate(k-1) ∘ odometry(k-1 → k).
     let steps = dataset::incremental_steps(&problem);
@@ -257,15 +260,12 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
     let path = dataset_path(name);
     let threshold = params.relinearize_threshold.to_string();
     let skip = params.relinearize_skip.to_string();
-    let json = gtsam.run(&[
-        "isam2",
-        "--in",
-        &path.to_string_lossy(),
-        "--relinearize-threshold",
-        &threshold,
-        "--relinearize-skip",
-        &skip,
-    ])?;
+    let path = path.to_string_lossy();
+    let mut args = vec!["isam2", "--in", &path, "--relinearize-threshold", &threshold, "--relinearize-skip", &skip];
+    if partial_check {
+        args.push("--partial-relinearization-check");
+    }
+    let json = gtsam.run(&args)?;
     let count = |name: &str| json[name].as_u64().ok_or_else(|| format!("no count `{name}` in the script's JSON"));
     let updates = json["updates"].as_u64().ok_or("no count `updates` in the script's JSON")?;
     let gtsam_run = IncrementalRun {
@@ -278,24 +278,29 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
         relinearized: None,
         reeliminated: count("reeliminated_variables")?,
     };
-    Ok(IncrementalRow { name, updates: steps.len(), ours, gtsam: gtsam_run })
+    Ok(IncrementalRow { name, partial_check, updates: steps.len(), ours, gtsam: gtsam_run })
+}
+
+fn check_name(partial_check: bool) -> &'static str {
+    if partial_check { "partial" } else { "full" }
 }
 
 fn print_incremental(rows: &[IncrementalRow]) {
     let params = IsamParams::default();
     println!(
-        "\nIncremental, one pose per update (ours: IsamParams {{ relinearize_threshold {}, relinearize_skip {}, wildfire {} }}; GTSAM: ISAM2 Gauss-Newton, CHOLESKY, same threshold and skip, wildfire 1e-3); one run each; relinearized and re-eliminated: variables, summed over the updates (GTSAM does not count relinearized ones)\n",
+        "\nIncremental, one pose per update (ours: IsamParams {{ relinearize_threshold {}, relinearize_skip {}, wildfire {} }}; GTSAM: ISAM2 Gauss-Newton, CHOLESKY, same threshold and skip, wildfire 1e-3); relinearization check: full (every variable) or partial (descending the tree; GTSAM's enablePartialRelinearizationCheck), the same on both sides; one run each; relinearized and re-eliminated: variables, summed over the updates (GTSAM does not count relinearized ones)\n",
         params.relinearize_threshold, params.relinearize_skip, params.wildfire_threshold
     );
     println!(
-        "| dataset | updates | solver | mean ms | median ms | p95 ms | max ms | total ms | final cost | relinearized | re-eliminated |"
+        "| dataset | check | updates | solver | mean ms | median ms | p95 ms | max ms | total ms | final cost | relinearized | re-eliminated |"
     );
-    println!("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         for (solver, t) in [("ours", &r.ours), ("GTSAM iSAM2", &r.gtsam)] {
             println!(
-                "| {} | {} | {solver} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {:.10} | {} | {} |",
+                "| {} | {} | {} | {solver} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {:.10} | {} | {} |",
                 r.name,
+                check_name(r.partial_check),
                 r.updates,
                 t.mean_ms,
                 t.median_ms,
@@ -311,8 +316,9 @@ fn print_incremental(rows: &[IncrementalRow]) {
     println!();
     for r in rows {
         println!(
-            "incremental {}: ours mean {:.3} ms, max {:.3} ms; GTSAM/ours median {:.2}x, p95 {:.2}x, max {:.2}x, total {:.2}x; final cost ours vs GTSAM {:+.2e} relative",
+            "incremental {} ({} check): ours mean {:.3} ms, max {:.3} ms; GTSAM/ours median {:.2}x, p95 {:.2}x, max {:.2}x, total {:.2}x; final cost ours vs GTSAM {:+.2e} relative",
             r.name,
+            check_name(r.partial_check),
             r.ours.mean_ms,
             r.ours.max_ms,
             r.gtsam.median_ms / r.ours.median_ms,
@@ -457,8 +463,11 @@ fn run(full: bool, filters: &[String]) -> Result<(), String> {
     if !batch_rows.is_empty() {
         print_batch(&batch_rows, runs);
     }
-    let incremental_rows =
-        incremental_sets.iter().map(|&name| incremental(name, &gtsam)).collect::<Result<Vec<_>, _>>()?;
+    let incremental_rows = incremental_sets
+        .iter()
+        .flat_map(|&name| [false, true].map(|partial_check| (name, partial_check)))
+        .map(|(name, partial_check)| incremental(name, &gtsam, partial_check))
+        .collect::<Result<Vec<_>, _>>()?;
     if !incremental_rows.is_empty() {
         print_incremental(&incremental_rows);
     }
