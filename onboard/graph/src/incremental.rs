@@ -52,7 +52,7 @@ pub struct IsamParams {
     /// every variable. It relinearizes fewer variables, but it misses a large step below a
     /// clique whose own steps stayed under the threshold: that step stays in `δ` (the estimate
     /// `θ ⊕ δ` includes it) at a stale linearization point until its ancestors move again.
-    /// Off by default: on parking-garage it makes the mean update 4.5× faster but not the
+    /// Off by default: on parking-garage it makes the mean update 4.2× faster but not the
     /// slowest one (a loop closure that moves nearly every variable past the threshold either
     /// way), and it ends 2.1e-3 above the batch optimum's cost where the full scan ends 6e-7
     /// above it (`BENCHMARKS.md`).
