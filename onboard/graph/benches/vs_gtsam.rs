@@ -5,7 +5,8 @@
 //! process start-up, no file parsing, no problem set-up).
 //!
 //! `cargo bench -p posegraph --bench vs_gtsam [-- NAME...]`: the full tables; NAME arguments
-//! keep only the datasets whose name contains one of them (e.g. `-- sphere2500`). Without
+//! keep only the datasets whose name contains one of them (e.g. `-- sphere2500`), and the
+//! words `batch`, `incremental` and `marginals` keep only those sections. Without
 //! `--bench` (as `cargo test --all-targets` runs it): a smoke run of every step on the small
 //! graphs, one repetition each.
 
@@ -206,6 +207,7 @@ fn print_batch(rows: &[BatchRow], runs: usize) {
 // ------------------------------------------------------------------------------------------------
 
 struct IncrementalRun {
+    mean_ms: f64,
     median_ms: f64,
     p95_ms: f64,
     max_ms: f64,
@@ -218,14 +220,17 @@ struct IncrementalRun {
 
 struct IncrementalRow {
     name: &'static str,
+    /// Both sides with the partial relinearization check (GTSAM's
+    /// `enablePartialRelinearizationCheck`) instead of checking every variable.
+    partial_check: bool,
     updates: usize,
     ours: IncrementalRun,
     gtsam: IncrementalRun,
 }
 
-fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, String> {
+fn incremental(name: &'static str, gtsam: &Gtsam, partial_check: bool) -> Result<IncrementalRow, String> {
     let problem = load(name)?;
-    let params = IsamParams::default();
+    let params = IsamParams { partial_relinearization_check: partial_check, ..IsamParams::default() };
     // Fed as the script feeds ISAM2: pose by pose in id order, with every factor whose latest
     // pose it is, initialised at estimate(k-1) ∘ odometry(k-1 → k).
     let steps = dataset::incremental_steps(&problem);
@@ -242,6 +247,7 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
         reeliminated += stats.reeliminated_variables as u64;
     }
     let ours = IncrementalRun {
+        mean_ms: times.iter().sum::<f64>() / times.len().max(1) as f64,
         median_ms: median(&times),
         p95_ms: percentile(&times, 95.0),
         max_ms: times.iter().copied().fold(0.0, f64::max),
@@ -254,17 +260,16 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
     let path = dataset_path(name);
     let threshold = params.relinearize_threshold.to_string();
     let skip = params.relinearize_skip.to_string();
-    let json = gtsam.run(&[
-        "isam2",
-        "--in",
-        &path.to_string_lossy(),
-        "--relinearize-threshold",
-        &threshold,
-        "--relinearize-skip",
-        &skip,
-    ])?;
+    let path = path.to_string_lossy();
+    let mut args = vec!["isam2", "--in", &path, "--relinearize-threshold", &threshold, "--relinearize-skip", &skip];
+    if partial_check {
+        args.push("--partial-relinearization-check");
+    }
+    let json = gtsam.run(&args)?;
     let count = |name: &str| json[name].as_u64().ok_or_else(|| format!("no count `{name}` in the script's JSON"));
+    let updates = json["updates"].as_u64().ok_or("no count `updates` in the script's JSON")?;
     let gtsam_run = IncrementalRun {
+        mean_ms: field(&json, "total_ms")? / updates.max(1) as f64,
         median_ms: field(&json, "median_update_ms")?,
         p95_ms: field(&json, "p95_update_ms")?,
         max_ms: field(&json, "max_update_ms")?,
@@ -273,25 +278,31 @@ fn incremental(name: &'static str, gtsam: &Gtsam) -> Result<IncrementalRow, Stri
         relinearized: None,
         reeliminated: count("reeliminated_variables")?,
     };
-    Ok(IncrementalRow { name, updates: steps.len(), ours, gtsam: gtsam_run })
+    Ok(IncrementalRow { name, partial_check, updates: steps.len(), ours, gtsam: gtsam_run })
+}
+
+fn check_name(partial_check: bool) -> &'static str {
+    if partial_check { "partial" } else { "full" }
 }
 
 fn print_incremental(rows: &[IncrementalRow]) {
     let params = IsamParams::default();
     println!(
-        "\nIncremental, one pose per update (ours: IsamParams {{ relinearize_threshold {}, relinearize_skip {}, wildfire {} }}; GTSAM: ISAM2 Gauss-Newton, CHOLESKY, same threshold and skip, wildfire 1e-3); one run each; relinearized and re-eliminated: variables, summed over the updates (GTSAM does not count relinearized ones)\n",
+        "\nIncremental, one pose per update (ours: IsamParams {{ relinearize_threshold {}, relinearize_skip {}, wildfire {} }}; GTSAM: ISAM2 Gauss-Newton, CHOLESKY, same threshold and skip, wildfire 1e-3); relinearization check: full (every variable) or partial (descending the tree; GTSAM's enablePartialRelinearizationCheck), the same on both sides; one run each; relinearized and re-eliminated: variables, summed over the updates (GTSAM does not count relinearized ones)\n",
         params.relinearize_threshold, params.relinearize_skip, params.wildfire_threshold
     );
     println!(
-        "| dataset | updates | solver | median ms | p95 ms | max ms | total ms | final cost | relinearized | re-eliminated |"
+        "| dataset | check | updates | solver | mean ms | median ms | p95 ms | max ms | total ms | final cost | relinearized | re-eliminated |"
     );
-    println!("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         for (solver, t) in [("ours", &r.ours), ("GTSAM iSAM2", &r.gtsam)] {
             println!(
-                "| {} | {} | {solver} | {:.3} | {:.3} | {:.3} | {:.1} | {:.10} | {} | {} |",
+                "| {} | {} | {} | {solver} | {:.3} | {:.3} | {:.3} | {:.3} | {:.1} | {:.10} | {} | {} |",
                 r.name,
+                check_name(r.partial_check),
                 r.updates,
+                t.mean_ms,
                 t.median_ms,
                 t.p95_ms,
                 t.max_ms,
@@ -305,8 +316,11 @@ fn print_incremental(rows: &[IncrementalRow]) {
     println!();
     for r in rows {
         println!(
-            "incremental {}: GTSAM/ours median {:.2}x, p95 {:.2}x, max {:.2}x, total {:.2}x; final cost ours vs GTSAM {:+.2e} relative",
+            "incremental {} ({} check): ours mean {:.3} ms, max {:.3} ms; GTSAM/ours median {:.2}x, p95 {:.2}x, max {:.2}x, total {:.2}x; final cost ours vs GTSAM {:+.2e} relative",
             r.name,
+            check_name(r.partial_check),
+            r.ours.mean_ms,
+            r.ours.max_ms,
             r.gtsam.median_ms / r.ours.median_ms,
             r.gtsam.p95_ms / r.ours.p95_ms,
             r.gtsam.max_ms / r.ours.max_ms,
@@ -404,9 +418,21 @@ fn print_marginals(rows: &[MarginalRow], runs: usize) {
 
 // ------------------------------------------------------------------------------------------------
 
-/// Datasets of `all` whose name contains one of `filters` (all of them without filters).
-fn selected(all: &[&'static str], filters: &[String]) -> Vec<&'static str> {
-    all.iter().copied().filter(|name| filters.is_empty() || filters.iter().any(|f| name.contains(f.as_str()))).collect()
+/// The benchmark's sections, selectable by name on the command line.
+const SECTIONS: [&str; 3] = ["batch", "incremental", "marginals"];
+
+/// Datasets of `all` whose name contains one of `filters` (all of them without dataset filters),
+/// or none if sections are named and `section` is not among them.
+fn selected(section: &str, all: &[&'static str], filters: &[String]) -> Vec<&'static str> {
+    let (sections, datasets): (Vec<&String>, Vec<&String>) =
+        filters.iter().partition(|f| SECTIONS.contains(&f.as_str()));
+    if !sections.is_empty() && !sections.iter().any(|s| s.as_str() == section) {
+        return Vec::new();
+    }
+    all.iter()
+        .copied()
+        .filter(|name| datasets.is_empty() || datasets.iter().any(|f| name.contains(f.as_str())))
+        .collect()
 }
 
 fn run(full: bool, filters: &[String]) -> Result<(), String> {
@@ -417,11 +443,16 @@ fn run(full: bool, filters: &[String]) -> Result<(), String> {
     } else {
         (&SMOKE_BATCH_DATASETS, &SMOKE_INCREMENTAL_DATASETS, &SMOKE_MARGINAL_DATASETS)
     };
-    let (batch_sets, incremental_sets, marginal_sets) =
-        (selected(batch_sets, filters), selected(incremental_sets, filters), selected(marginal_sets, filters));
+    let (batch_sets, incremental_sets, marginal_sets) = (
+        selected("batch", batch_sets, filters),
+        selected("incremental", incremental_sets, filters),
+        selected("marginals", marginal_sets, filters),
+    );
     if batch_sets.is_empty() && incremental_sets.is_empty() && marginal_sets.is_empty() {
         if full {
-            return Err(format!("no dataset matches {filters:?}; the datasets are {BATCH_DATASETS:?}"));
+            return Err(format!(
+                "no dataset matches {filters:?}; the datasets are {BATCH_DATASETS:?}, the sections {SECTIONS:?}"
+            ));
         }
         // `cargo test -- some_test_name` reaches this binary too: nothing of ours was asked for.
         return Ok(());
@@ -432,8 +463,11 @@ fn run(full: bool, filters: &[String]) -> Result<(), String> {
     if !batch_rows.is_empty() {
         print_batch(&batch_rows, runs);
     }
-    let incremental_rows =
-        incremental_sets.iter().map(|&name| incremental(name, &gtsam)).collect::<Result<Vec<_>, _>>()?;
+    let incremental_rows = incremental_sets
+        .iter()
+        .flat_map(|&name| [false, true].map(|partial_check| (name, partial_check)))
+        .map(|(name, partial_check)| incremental(name, &gtsam, partial_check))
+        .collect::<Result<Vec<_>, _>>()?;
     if !incremental_rows.is_empty() {
         print_incremental(&incremental_rows);
     }

@@ -19,8 +19,10 @@ Subcommands:
              optimize() only. --robust wraps the loop closures (between factors with
              |i - j| != 1) in a Cauchy or Huber M-estimator.
   isam2      --in G.g2o [--relinearize-threshold 0.1] [--relinearize-skip 1]
+             [--partial-relinearization-check]
              Feeds the graph to ISAM2 one pose at a time in key order; per-update times and
-             the variables re-eliminated (summed over the updates).
+             the variables re-eliminated (summed over the updates). The last flag sets
+             ISAM2Params.enablePartialRelinearizationCheck (GTSAM's default: off).
   marginals  --in G.g2o (--keys 0,5,... | --all) [--runs N] [--no-covariances]
              Batch LM result, then marginal covariances, converted to OUR tangent order
              [translation, rotation]. --all: every pose. marginals_ms: wall time of
@@ -230,6 +232,7 @@ def cmd_isam2(args):
     params.setFactorization("CHOLESKY")
     params.setRelinearizeThreshold(args.relinearize_threshold)
     params.relinearizeSkip = args.relinearize_skip
+    params.enablePartialRelinearizationCheck = args.partial_relinearization_check
     isam2 = gtsam.ISAM2(params)
 
     update_ms = []
@@ -264,6 +267,7 @@ def cmd_isam2(args):
         "dataset": os.path.basename(args.input),
         "relinearize_threshold": args.relinearize_threshold,
         "relinearize_skip": args.relinearize_skip,
+        "partial_relinearization_check": args.partial_relinearization_check,
         "vertices": len(keys),
         "factors": int(graph.size()),
         "updates": len(update_ms),
@@ -477,6 +481,7 @@ def main(argv=None):
     p.add_argument("--in", dest="input", required=True, metavar="G.g2o")
     p.add_argument("--relinearize-threshold", type=float, default=0.1)
     p.add_argument("--relinearize-skip", type=int, default=1)
+    p.add_argument("--partial-relinearization-check", action="store_true")
     p.set_defaults(func=cmd_isam2)
 
     p = sub.add_parser("marginals", help="marginal covariances after batch LM")

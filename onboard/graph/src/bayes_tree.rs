@@ -186,8 +186,13 @@ pub(crate) struct BayesTree {
     /// Elimination position of each variable; later eliminations get larger numbers.
     pub position: Vec<u64>,
     next_position: u64,
-    /// Scratch arrays over variables (the fronts' slots live in `scratch`).
+    /// Scratch arrays over variables (the fronts' slots live in `scratch`). Every operation
+    /// leaves `mark` all `NONE` and `var_flag` all false, so that no update pays for a pass
+    /// over all variables.
     mark: Vec<usize>,
+    var_flag: Vec<bool>,
+    /// Scratch over clique ids, all false between operations.
+    clique_flag: Vec<bool>,
     scratch: Scratch,
 }
 
@@ -197,6 +202,7 @@ impl BayesTree {
             self.var_clique.resize(n, NONE);
             self.position.resize(n, 0);
             self.mark.resize(n, NONE);
+            self.var_flag.resize(n, false);
             self.scratch.ensure_vars(n);
         }
     }
@@ -225,10 +231,21 @@ impl BayesTree {
         let orphan_seps: Vec<(usize, Vec<usize>)> =
             orphans.iter().map(|&o| (o, self.clique(o).separator.clone())).collect();
         let orphan_refs: Vec<(usize, &[usize])> = orphan_seps.iter().map(|(o, s)| (*o, s.as_slice())).collect();
-        for m in self.mark.iter_mut() {
-            *m = NONE;
+        let cliques = eliminate_symbolic(
+            order,
+            &self.position,
+            factors,
+            lin,
+            &orphan_refs,
+            &mut self.scratch.slot,
+            &mut self.mark,
+        );
+        // Elimination marks only variables of `order`: factors and orphan separators lie inside it.
+        for &v in order {
+            self.mark[v] = NONE;
         }
-        eliminate_symbolic(order, &self.position, factors, lin, &orphan_refs, &mut self.scratch.slot, &mut self.mark)
+        debug_assert!(self.mark.iter().all(|&m| m == NONE));
+        cliques
     }
 
     /// Numeric factorization of new symbolic cliques (postorder), reading orphans' cached factors.
@@ -343,18 +360,58 @@ impl BayesTree {
         ids
     }
 
-    /// The cliques on the paths from `marked` cliques to their roots (deduplicated).
-    pub fn ancestors_closure(&self, marked: impl Iterator<Item = usize>) -> Vec<usize> {
-        let mut in_top = vec![false; self.cliques.len()];
-        let mut result = Vec::new();
-        for mut c in marked {
+    fn take_clique_flags(&mut self) -> Vec<bool> {
+        let mut flags = std::mem::take(&mut self.clique_flag);
+        flags.resize(self.cliques.len(), false);
+        flags
+    }
+
+    /// The top of the tree for the `marked` cliques: the cliques on their paths to the roots
+    /// (deduplicated, each path from its marked clique upwards), and the orphans, the children
+    /// of top cliques that are not in the top themselves.
+    pub fn top_and_orphans(&mut self, marked: &[usize]) -> (Vec<usize>, Vec<usize>) {
+        let mut in_top = self.take_clique_flags();
+        let mut top = Vec::new();
+        for &(mut c) in marked {
             while c != NONE && !in_top[c] {
                 in_top[c] = true;
-                result.push(c);
+                top.push(c);
                 c = self.clique(c).parent;
             }
         }
-        result
+        let mut orphans = Vec::new();
+        for &c in &top {
+            orphans.extend(self.clique(c).children.iter().copied().filter(|&child| !in_top[child]));
+        }
+        for &c in &top {
+            in_top[c] = false;
+        }
+        self.clique_flag = in_top;
+        (top, orphans)
+    }
+
+    /// Variables whose step exceeds `threshold` in some component, found by descending from the
+    /// roots: a clique's children are visited only if one of its frontal or separator variables
+    /// exceeds it (GTSAM's partial relinearization check). A large step below a clique whose own
+    /// variables stayed under the threshold is not seen. Appended to `out` in visiting order.
+    pub fn steps_above_partial(&self, delta: &[Vector6<f64>], threshold: f64, out: &mut Vec<usize>) {
+        let mut stack: Vec<usize> = self.roots.clone();
+        while let Some(c) = stack.pop() {
+            let clique = self.clique(c);
+            let mut descend = false;
+            for &v in &clique.frontals {
+                if delta[v].amax() > threshold {
+                    out.push(v);
+                    descend = true;
+                }
+            }
+            // Separator variables are frontals of ancestors, already collected on the way down;
+            // they only widen the descent, as in GTSAM.
+            descend = descend || clique.separator.iter().any(|&v| delta[v].amax() > threshold);
+            if descend {
+                stack.extend_from_slice(&clique.children);
+            }
+        }
     }
 
     /// Solves every clique top-down (batch).
@@ -374,9 +431,11 @@ impl BayesTree {
     /// Partial back-substitution from the cliques `start` (re-eliminated: always solved) down
     /// into subtrees only while some separator variable moved by more than `threshold`
     /// (iSAM2's wildfire). Returns the number of cliques solved.
-    pub fn solve_wildfire(&self, start: &[usize], delta: &mut [Vector6<f64>], threshold: f64) -> usize {
-        let mut changed = vec![false; delta.len()];
-        let mut forced = vec![false; self.cliques.len()];
+    pub fn solve_wildfire(&mut self, start: &[usize], delta: &mut [Vector6<f64>], threshold: f64) -> usize {
+        let mut changed = std::mem::take(&mut self.var_flag);
+        changed.resize(delta.len(), false);
+        let mut changed_vars: Vec<usize> = Vec::new();
+        let mut forced = self.take_clique_flags();
         for &c in start {
             forced[c] = true;
         }
@@ -393,13 +452,22 @@ impl BayesTree {
             linear::solve_frontals(&clique.conditional, &clique.separator, delta, &mut delta_f);
             for (i, &v) in clique.frontals.iter().enumerate() {
                 let new = Vector6::from_column_slice(&delta_f[6 * i..6 * i + 6]);
-                if (new - delta[v]).amax() > threshold {
+                if (new - delta[v]).amax() > threshold && !changed[v] {
                     changed[v] = true;
+                    changed_vars.push(v);
                 }
                 delta[v] = new;
             }
             stack.extend_from_slice(&clique.children);
         }
+        for v in changed_vars {
+            changed[v] = false;
+        }
+        for &c in start {
+            forced[c] = false;
+        }
+        self.var_flag = changed;
+        self.clique_flag = forced;
         solved
     }
 
