@@ -16,6 +16,7 @@ use std::time::Instant;
 
 use nalgebra::Matrix6;
 use posegraph::dataset::{self, Problem};
+use posegraph::ordering::{self, approximate_min_degree, factor_nonzeros, min_degree};
 use posegraph::{Isam, IsamParams, Key, LmParams, LmSummary, g2o, marginal_covariances, optimize};
 
 /// The 3-D datasets, largest first.
@@ -198,6 +199,12 @@ fn print_batch(rows: &[BatchRow], runs: usize) {
             r.gtsam_ms,
             r.ours_ms,
             relative(r.ours.final_cost, r.gtsam_final)
+        );
+    }
+    for r in rows {
+        println!(
+            "batch {}: ordering (ours, inside optimize()) {:.2} ms of {:.2} ms; GTSAM's COLAMD is outside its time",
+            r.name, r.ours.ordering_ms, r.ours_ms
         );
     }
 }
@@ -419,7 +426,7 @@ fn print_marginals(rows: &[MarginalRow], runs: usize) {
 // ------------------------------------------------------------------------------------------------
 
 /// The benchmark's sections, selectable by name on the command line.
-const SECTIONS: [&str; 3] = ["batch", "incremental", "marginals"];
+const SECTIONS: [&str; 4] = ["batch", "incremental", "marginals", "ordering"];
 
 /// Datasets of `all` whose name contains one of `filters` (all of them without dataset filters),
 /// or none if sections are named and `section` is not among them.
@@ -435,8 +442,101 @@ fn selected(section: &str, all: &[&'static str], filters: &[String]) -> Vec<&'st
         .collect()
 }
 
+/// The variable graph of a walk through an `nx × ny × nz` lattice (rows back and forth, layers
+/// stacked): odometry between consecutive poses, a loop closure to the cell in the previous row,
+/// and at `x = 0` and `x = nx / 2` one to the cell in the previous layer. The same graph as
+/// `tests/ordering_amd.rs` optimizes.
+fn lattice_edges(nx: usize, ny: usize, nz: usize) -> Vec<[usize; 2]> {
+    let cell = |x: usize, y: usize, z: usize| (z * ny + y) * nx + x;
+    let mut index_of_cell = vec![0usize; nx * ny * nz];
+    let mut i = 0;
+    for z in 0..nz {
+        for yy in 0..ny {
+            let y = if z.is_multiple_of(2) { yy } else { ny - 1 - yy };
+            for xx in 0..nx {
+                let x = if (z * ny + yy).is_multiple_of(2) { xx } else { nx - 1 - xx };
+                index_of_cell[cell(x, y, z)] = i;
+                i += 1;
+            }
+        }
+    }
+    let mut edges: Vec<[usize; 2]> = (1..i).map(|k| [k - 1, k]).collect();
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let b = index_of_cell[cell(x, y, z)];
+                let mut others = Vec::new();
+                if y > 0 {
+                    others.push(index_of_cell[cell(x, y - 1, z)]);
+                }
+                if z > 0 && x.is_multiple_of(nx / 2) {
+                    others.push(index_of_cell[cell(x, y, z - 1)]);
+                }
+                edges.extend(others.into_iter().filter(|&a| a + 1 != b && b + 1 != a).map(|a| [a, b]));
+            }
+        }
+    }
+    edges
+}
+
+/// AMD against exact minimum degree: time and factor size, on the 3-D datasets and on a
+/// 50,000-pose lattice beyond the exact ordering's threshold.
+fn ordering_section(datasets: &[&'static str]) -> Result<(), String> {
+    println!("\nOrdering: AMD (quotient graph) vs exact minimum degree (bit rows); single runs, ordering only");
+    println!("factor blocks = nonzero 6x6 blocks of the Cholesky factor (symbolic elimination)\n");
+    println!(
+        "| graph | poses | ordering used | exact MD ms | exact MD bit rows MB | AMD ms | AMD peak entries / input | factor blocks MD | factor blocks AMD | AMD / MD |"
+    );
+    println!("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|");
+    let mut graphs: Vec<(String, usize, Vec<[usize; 2]>)> = Vec::new();
+    for &name in datasets {
+        let problem = load(name)?;
+        let edges = problem
+            .factors
+            .iter()
+            .map(|f| {
+                let keys = f.keys();
+                let a = problem.values.index_of(keys[0]).ok_or("unknown key")?;
+                let b = problem.values.index_of(keys[keys.len() - 1]).ok_or("unknown key")?;
+                Ok([a, b])
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        graphs.push((name.to_string(), problem.values.len(), edges));
+    }
+    graphs.push(("lattice 50x50x20".to_string(), 50_000, lattice_edges(50, 50, 20)));
+    for (name, n, edges) in &graphs {
+        let n = *n;
+        let start = Instant::now();
+        let exact = min_degree(n, edges.iter().map(|e| &e[..]), &[]);
+        let exact_ms = start.elapsed().as_secs_f64() * 1e3;
+        let start = Instant::now();
+        let amd = approximate_min_degree(n, edges.iter().map(|e| &e[..]), &[]);
+        let amd_ms = start.elapsed().as_secs_f64() * 1e3;
+        let fill_exact = factor_nonzeros(n, edges.iter().map(|e| &e[..]), &exact);
+        let fill_amd = factor_nonzeros(n, edges.iter().map(|e| &e[..]), &amd.order);
+        let used = if n <= ordering::EXACT_MAX_VARIABLES { "exact MD" } else { "AMD" };
+        println!(
+            "| {name} | {n} | {used} | {exact_ms:.2} | {:.1} | {amd_ms:.2} | {:.2} | {fill_exact} | {fill_amd} | {:.3} |",
+            (n * n.div_ceil(64) * 8) as f64 / 1e6,
+            amd.peak_entries as f64 / amd.initial_entries.max(1) as f64,
+            fill_amd as f64 / fill_exact as f64
+        );
+    }
+    Ok(())
+}
+
 fn run(full: bool, filters: &[String]) -> Result<(), String> {
     let started = Instant::now();
+    let ordering_sets = selected("ordering", if full { &BATCH_DATASETS } else { &SMOKE_BATCH_DATASETS }, filters);
+    if full && !ordering_sets.is_empty() {
+        ordering_section(&ordering_sets)?;
+    }
+    // The ordering section needs no GTSAM: asked for alone, it runs without the venv.
+    let sections: Vec<&str> = filters.iter().map(String::as_str).filter(|f| SECTIONS.contains(f)).collect();
+    if sections == ["ordering"] {
+        println!("\nvs_gtsam: {:.1} s in total", started.elapsed().as_secs_f64());
+        return Ok(());
+    }
     let gtsam = Gtsam::find()?;
     let (batch_sets, incremental_sets, marginal_sets): (&[&'static str], &[&'static str], &[&'static str]) = if full {
         (&BATCH_DATASETS, &INCREMENTAL_DATASETS, &MARGINAL_DATASETS)

@@ -61,6 +61,9 @@ pub struct LmSummary {
     /// Factorizations, including those of rejected steps.
     pub factorizations: usize,
     pub termination: Termination,
+    /// Time spent on the fill-reducing ordering (part of the total), reported apart as GTSAM
+    /// reports its COLAMD.
+    pub ordering_ms: f64,
 }
 
 /// Dense variable indices of every factor; errors on a key without a value.
@@ -116,18 +119,21 @@ pub(crate) struct Factored {
     symbolic: Vec<crate::bayes_tree::SymbolicClique>,
     /// Clique ids in postorder once the first factorization succeeded.
     postorder: Vec<usize>,
+    pub ordering_ms: f64,
 }
 
 impl Factored {
     pub fn analyse(indices: &[[usize; 2]], arities: &[usize], n: usize, lin: &[LinearFactor]) -> Self {
         let edges: Vec<&[usize]> = indices.iter().zip(arities).map(|(v, &a)| &v[..a]).collect();
-        let order = ordering::min_degree(n, edges.iter().copied(), &[]);
+        let started = std::time::Instant::now();
+        let order = ordering::order(n, edges.iter().copied(), &[]);
+        let ordering_ms = started.elapsed().as_secs_f64() * 1e3;
         let mut tree = BayesTree::default();
         tree.ensure_vars(n);
         tree.assign_positions(&order);
         let all: Vec<usize> = (0..lin.len()).collect();
         let symbolic = tree.symbolic(&order, &all, lin, &[]);
-        Self { tree, symbolic, postorder: Vec::new() }
+        Self { tree, symbolic, postorder: Vec::new(), ordering_ms }
     }
 
     /// Factors the whole system (optionally damped) and stores it in the tree.
@@ -212,7 +218,14 @@ pub fn optimize(factors: &[Factor], values: &mut Values, params: &LmParams) -> R
             break;
         }
     }
-    Ok(LmSummary { initial_cost, final_cost: cost, iterations, factorizations, termination })
+    Ok(LmSummary {
+        initial_cost,
+        final_cost: cost,
+        iterations,
+        factorizations,
+        termination,
+        ordering_ms: factored.ordering_ms,
+    })
 }
 
 /// Diagonal of the information matrix per variable, clamped as Ceres does so that damping

@@ -256,7 +256,7 @@ impl Isam {
         for &v in &top_vars {
             local[v] = NONE;
         }
-        let order: Vec<usize> = ordering::min_degree(top_vars.len(), edges.iter().map(Vec::as_slice), &last)
+        let order: Vec<usize> = ordering::order(top_vars.len(), edges.iter().map(Vec::as_slice), &last)
             .into_iter()
             .map(|i| top_vars[i])
             .collect();

@@ -26,7 +26,7 @@ mod jacobian_checks;
 mod linear;
 #[cfg(test)]
 mod numdiff;
-mod ordering;
+pub mod ordering;
 pub mod se3;
 pub mod values;
 
