@@ -123,7 +123,11 @@ struct BatchRow {
     vertices: usize,
     factors: usize,
     ours: LmSummary,
+    /// One thread.
     ours_ms: f64,
+    /// Two threads; their summary, to show how many factorizations were threaded.
+    ours2: LmSummary,
+    ours2_ms: f64,
     gtsam_initial: f64,
     gtsam_final: f64,
     gtsam_iterations: u64,
@@ -132,17 +136,21 @@ struct BatchRow {
 
 fn batch(name: &'static str, gtsam: &Gtsam, runs: usize) -> Result<BatchRow, String> {
     let problem = load(name)?;
-    let mut times = Vec::with_capacity(runs);
-    let mut summary = None;
+    let mut times = [Vec::with_capacity(runs), Vec::with_capacity(runs)];
+    let mut summaries = [None, None];
+    // Alternate 1 and 2 threads so that a change of load affects both alike.
     for _ in 0..runs {
-        let mut values = problem.values.clone();
-        let start = Instant::now();
-        let result =
-            optimize(&problem.factors, &mut values, &LmParams::default()).map_err(|e| format!("{name}: {e}"))?;
-        times.push(start.elapsed().as_secs_f64() * 1e3);
-        summary = Some(result);
+        for (k, threads) in [1, 2].into_iter().enumerate() {
+            let params = LmParams { threads, ..LmParams::default() };
+            let mut values = problem.values.clone();
+            let start = Instant::now();
+            let result = optimize(&problem.factors, &mut values, &params).map_err(|e| format!("{name}: {e}"))?;
+            times[k].push(start.elapsed().as_secs_f64() * 1e3);
+            summaries[k] = Some(result);
+        }
     }
-    let ours = summary.ok_or("no batch run")?;
+    let [ours, ours2] = summaries;
+    let (ours, ours2) = (ours.ok_or("no batch run")?, ours2.ok_or("no batch run")?);
 
     let path = dataset_path(name);
     let path = path.to_string_lossy();
@@ -157,7 +165,9 @@ fn batch(name: &'static str, gtsam: &Gtsam, runs: usize) -> Result<BatchRow, Str
         vertices: problem.values.len(),
         factors: problem.factors.len(),
         ours,
-        ours_ms: median(&times),
+        ours_ms: median(&times[0]),
+        ours2,
+        ours2_ms: median(&times[1]),
         gtsam_initial: field(&last, "initial_cost")?,
         gtsam_final: field(&last, "final_cost")?,
         gtsam_iterations: last["iterations"].as_u64().ok_or("no iterations in the script's JSON")?,
@@ -167,14 +177,17 @@ fn batch(name: &'static str, gtsam: &Gtsam, runs: usize) -> Result<BatchRow, Str
 
 fn print_batch(rows: &[BatchRow], runs: usize) {
     println!("\nBatch Levenberg-Marquardt (defaults; GTSAM: LevenbergMarquardtParams, maxIterations 100)");
-    println!("time: optimize() only, median of {runs} runs each (GTSAM: {runs} script invocations)\n");
+    println!("time: optimize() only, median of {runs} runs each (GTSAM: {runs} script invocations)");
     println!(
-        "| dataset | poses | factors | initial cost ours / GTSAM | final cost ours | final cost GTSAM | rel. diff | iterations ours / GTSAM | ms ours | ms GTSAM | GTSAM / ours |"
+        "ours with 1 and with 2 threads (LmParams::threads), alternating; 'threaded': factorizations on 2 threads\n"
     );
-    println!("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|");
+    println!(
+        "| dataset | poses | factors | initial cost ours / GTSAM | final cost ours | final cost GTSAM | rel. diff | iterations ours / GTSAM | ms ours 1 thr | ms ours 2 thr | threaded | ms GTSAM | GTSAM / ours 1 thr | GTSAM / ours 2 thr |"
+    );
+    println!("|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         println!(
-            "| {} | {} | {} | {:.6} / {:.6} | {:.10} | {:.10} | {:+.1e} | {} / {} | {:.2} | {:.2} | {:.2} |",
+            "| {} | {} | {} | {:.6} / {:.6} | {:.10} | {:.10} | {:+.1e} | {} / {} | {:.2} | {:.2} | {}/{} | {:.2} | {:.2} | {:.2} |",
             r.name,
             r.vertices,
             r.factors,
@@ -186,18 +199,24 @@ fn print_batch(rows: &[BatchRow], runs: usize) {
             r.ours.iterations,
             r.gtsam_iterations,
             r.ours_ms,
+            r.ours2_ms,
+            r.ours2.threaded_factorizations,
+            r.ours2.factorizations,
             r.gtsam_ms,
-            r.gtsam_ms / r.ours_ms
+            r.gtsam_ms / r.ours_ms,
+            r.gtsam_ms / r.ours2_ms
         );
     }
     println!();
     for r in rows {
         println!(
-            "batch {}: time GTSAM/ours {:.2}x ({:.2} ms vs {:.2} ms), final cost ours vs GTSAM {:+.2e} relative",
+            "batch {}: time GTSAM/ours {:.2}x 1 thread, {:.2}x 2 threads ({:.2} ms vs {:.2} / {:.2} ms), final cost ours vs GTSAM {:+.2e} relative",
             r.name,
             r.gtsam_ms / r.ours_ms,
+            r.gtsam_ms / r.ours2_ms,
             r.gtsam_ms,
             r.ours_ms,
+            r.ours2_ms,
             relative(r.ours.final_cost, r.gtsam_final)
         );
     }

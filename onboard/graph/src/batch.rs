@@ -26,6 +26,22 @@ pub struct LmParams {
     pub initial_lambda: f64,
     /// Give up raising the damping beyond this.
     pub max_lambda: f64,
+    /// Threads of the numeric factorization. With 2 or more, two independent subtrees of the
+    /// elimination tree are factored concurrently when that saves at least
+    /// [`MIN_THREADED_FLOPS`] (larger counts currently also use two). 1 is the sequential path.
+    /// Results are bit-identical for every value.
+    pub threads: usize,
+}
+
+/// Estimated flops a two-thread factorization must take off the calling thread before it is
+/// used: below this, spawning and joining the thread costs more than it saves. smallGrid3D
+/// (125 poses, 1.4e6 flops saved per factorization) lost 0.15 ms per factorization on two
+/// threads; see `BENCHMARKS.md`, "Two threads".
+pub const MIN_THREADED_FLOPS: f64 = 1.0e7;
+
+/// The default thread count: the available parallelism, capped at 2.
+pub fn default_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get().min(2))
 }
 
 impl Default for LmParams {
@@ -36,6 +52,7 @@ impl Default for LmParams {
             absolute_tolerance: 1e-5,
             initial_lambda: 1e-5,
             max_lambda: 1e10,
+            threads: default_threads(),
         }
     }
 }
@@ -60,6 +77,8 @@ pub struct LmSummary {
     pub iterations: usize,
     /// Factorizations, including those of rejected steps.
     pub factorizations: usize,
+    /// Factorizations that ran on two threads.
+    pub threaded_factorizations: usize,
     pub termination: Termination,
     /// Time spent on the fill-reducing ordering (part of the total), reported apart as GTSAM
     /// reports its COLAMD.
@@ -117,13 +136,16 @@ pub(crate) fn check_anchored(factors: &[Factor], indices: &[[usize; 2]], values:
 pub(crate) struct Factored {
     pub tree: BayesTree,
     symbolic: Vec<crate::bayes_tree::SymbolicClique>,
-    /// Clique ids in postorder once the first factorization succeeded.
+    /// Clique ids in postorder once the tree is committed.
     postorder: Vec<usize>,
     pub ordering_ms: f64,
+    threads: usize,
+    /// Where the factorization splits over two threads, if it pays.
+    split: Option<crate::bayes_tree::ParallelSplit>,
 }
 
 impl Factored {
-    pub fn analyse(indices: &[[usize; 2]], arities: &[usize], n: usize, lin: &[LinearFactor]) -> Self {
+    pub fn analyse(indices: &[[usize; 2]], arities: &[usize], n: usize, lin: &[LinearFactor], threads: usize) -> Self {
         let edges: Vec<&[usize]> = indices.iter().zip(arities).map(|(v, &a)| &v[..a]).collect();
         let started = std::time::Instant::now();
         let order = ordering::order(n, edges.iter().copied(), &[]);
@@ -133,18 +155,26 @@ impl Factored {
         tree.assign_positions(&order);
         let all: Vec<usize> = (0..lin.len()).collect();
         let symbolic = tree.symbolic(&order, &all, lin, &[]);
-        Self { tree, symbolic, postorder: Vec::new(), ordering_ms }
+        Self { tree, symbolic, postorder: Vec::new(), ordering_ms, threads, split: None }
     }
 
-    /// Factors the whole system (optionally damped) and stores it in the tree.
-    pub fn factor(&mut self, lin: &[LinearFactor], damping: Option<Damping<'_>>) -> Result<(), usize> {
+    /// Factors the whole system (optionally damped) and stores it in the tree. Returns whether
+    /// it ran on two threads.
+    pub fn factor(&mut self, lin: &[LinearFactor], damping: Option<Damping<'_>>) -> Result<bool, usize> {
         if self.postorder.is_empty() {
-            let numeric = self.tree.numeric(&self.symbolic, lin, damping).map_err(|e| e.var)?;
-            self.postorder = self.tree.commit(&[], self.symbolic.clone(), numeric);
-            Ok(())
-        } else {
-            self.tree.refactor(&self.postorder, lin, damping).map_err(|e| e.var)
+            // Commit the structure with empty buffers so that every factorization, the first
+            // included, takes the same (possibly threaded) refactoring path.
+            let empty = vec![Default::default(); self.symbolic.len()];
+            self.postorder = self.tree.commit(&[], std::mem::take(&mut self.symbolic), empty);
+            if self.threads >= 2 {
+                self.split = self.tree.plan_split().filter(|s| s.saved_flops >= MIN_THREADED_FLOPS);
+            }
         }
+        match &self.split {
+            Some(split) => self.tree.refactor_split(split, lin, damping).map(|()| true),
+            None => self.tree.refactor(&self.postorder, lin, damping).map(|()| false),
+        }
+        .map_err(|e| e.var)
     }
 }
 
@@ -157,13 +187,14 @@ pub fn optimize(factors: &[Factor], values: &mut Values, params: &LmParams) -> R
     let arities: Vec<usize> = factors.iter().map(Factor::arity).collect();
     let mut lin: Vec<LinearFactor> =
         factors.iter().zip(&indices).map(|(f, &v)| linearize_into(f, v, values.poses())).collect();
-    let mut factored = Factored::analyse(&indices, &arities, n, &lin);
+    let mut factored = Factored::analyse(&indices, &arities, n, &lin, params.threads);
 
     let initial_cost = cost_at(factors, &indices, values.poses());
     let mut cost = initial_cost;
     let mut lambda = params.initial_lambda;
     let mut iterations = 0;
     let mut factorizations = 0;
+    let mut threaded_factorizations = 0;
     let mut delta = vec![Vector6::zeros(); n];
     let mut diagonal = vec![Vector6::zeros(); n];
     let mut trial: Vec<Pose3> = values.poses().to_vec();
@@ -178,9 +209,12 @@ pub fn optimize(factors: &[Factor], values: &mut Values, params: &LmParams) -> R
         let mut converged = false;
         while lambda <= params.max_lambda {
             factorizations += 1;
-            if factored.factor(&lin, Some(Damping { lambda, diagonal: &diagonal })).is_err() {
-                lambda = (lambda * 10.0).max(params.initial_lambda);
-                continue;
+            match factored.factor(&lin, Some(Damping { lambda, diagonal: &diagonal })) {
+                Ok(threaded) => threaded_factorizations += usize::from(threaded),
+                Err(_) => {
+                    lambda = (lambda * 10.0).max(params.initial_lambda);
+                    continue;
+                }
             }
             factored.tree.solve_all(&mut delta);
             for (t, (x, d)) in trial.iter_mut().zip(values.poses().iter().zip(&delta)) {
@@ -223,6 +257,7 @@ pub fn optimize(factors: &[Factor], values: &mut Values, params: &LmParams) -> R
         final_cost: cost,
         iterations,
         factorizations,
+        threaded_factorizations,
         termination,
         ordering_ms: factored.ordering_ms,
     })
@@ -261,7 +296,7 @@ pub fn marginal_covariances(
     let arities: Vec<usize> = factors.iter().map(Factor::arity).collect();
     let lin: Vec<LinearFactor> =
         factors.iter().zip(&indices).map(|(f, &v)| linearize_into(f, v, values.poses())).collect();
-    let mut factored = Factored::analyse(&indices, &arities, values.len(), &lin);
+    let mut factored = Factored::analyse(&indices, &arities, values.len(), &lin, 1);
     factored.factor(&lin, None).map_err(|v| GraphError::NotPositiveDefinite(values.keys()[v]))?;
     Ok(factored.tree.marginals(&vars))
 }
@@ -323,7 +358,7 @@ mod tests {
             }
         }
         let dense = h.clone().cholesky().unwrap().solve(&r);
-        let mut factored = Factored::analyse(&indices, &arities, n, &lin);
+        let mut factored = Factored::analyse(&indices, &arities, n, &lin, 1);
         factored.factor(&lin, None).unwrap();
         let mut delta = vec![Vector6::zeros(); n];
         factored.tree.solve_all(&mut delta);

@@ -175,6 +175,74 @@ fn postorder(cliques: Vec<SymbolicClique>) -> Vec<SymbolicClique> {
         .collect()
 }
 
+/// How a postorder-numbered tree (clique id = postorder position) is factored on two threads:
+/// a worker takes the whole subtrees in the id range `worker`, all children of one clique;
+/// meanwhile the calling thread factors every clique that is neither in that range nor an
+/// ancestor of it (`caller`, in postorder), and after the join the ancestors (`ancestors`).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct ParallelSplit {
+    pub worker: std::ops::Range<usize>,
+    pub caller: Vec<usize>,
+    pub ancestors: Vec<usize>,
+    /// Estimated flops taken off the calling thread's critical path.
+    pub saved_flops: f64,
+}
+
+/// Rough flop count of assembling and partially factoring a front with `m` frontal and `s`
+/// separator variables: the panel Cholesky, the triangular solve and the Schur update, plus
+/// the zeroing and copying of the front.
+pub(crate) fn front_flops(m: usize, s: usize) -> f64 {
+    let nf = 6.0 * m as f64;
+    let ns = 6.0 * s as f64;
+    let n = nf + ns;
+    nf * nf * nf / 3.0 + nf * nf * ns + nf * ns * ns + 2.0 * n * n
+}
+
+/// The clique array seen by one thread: ids below `low.len()` and ids from `high_start` on.
+struct CliqueView<'a> {
+    low: &'a mut [Option<Clique>],
+    high: &'a mut [Option<Clique>],
+    high_start: usize,
+}
+
+impl CliqueView<'_> {
+    fn slot(&mut self, id: usize) -> &mut Option<Clique> {
+        if id < self.low.len() { &mut self.low[id] } else { &mut self.high[id - self.high_start] }
+    }
+
+    fn get(&self, id: usize) -> Option<&Clique> {
+        if id < self.low.len() { self.low[id].as_ref() } else { self.high[id - self.high_start].as_ref() }
+    }
+}
+
+/// Re-factors the cliques `ids` (children before parents); the view must hold their children.
+/// A failure carries the id of the failing clique.
+fn refactor_view(
+    cliques: &mut CliqueView<'_>,
+    ids: impl Iterator<Item = usize>,
+    lin: &[LinearFactor],
+    damping: Option<Damping<'_>>,
+    scratch: &mut Scratch,
+) -> Result<(), (usize, NotPositiveDefinite)> {
+    for id in ids {
+        let Some(mut clique) = cliques.slot(id).take() else { continue };
+        let children =
+            clique.children.iter().filter_map(|&c| cliques.get(c)).map(|c| (c.separator.as_slice(), &c.cached));
+        let result = linear::factor_front(
+            &clique.frontals,
+            &clique.separator,
+            clique.factors.iter().map(|&f| &lin[f]),
+            children,
+            damping,
+            scratch,
+            (&mut clique.conditional, &mut clique.cached),
+        );
+        *cliques.slot(id) = Some(clique);
+        result.map_err(|e| (id, e))?;
+    }
+    Ok(())
+}
+
 /// The tree of cliques over all variables.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct BayesTree {
@@ -194,6 +262,8 @@ pub(crate) struct BayesTree {
     /// Scratch over clique ids, all false between operations.
     clique_flag: Vec<bool>,
     scratch: Scratch,
+    /// The second thread's buffers, kept so that threaded refactoring does not allocate.
+    worker_scratch: Scratch,
 }
 
 impl BayesTree {
@@ -286,26 +356,115 @@ impl BayesTree {
         lin: &[LinearFactor],
         damping: Option<Damping<'_>>,
     ) -> Result<(), NotPositiveDefinite> {
-        for &id in postorder {
-            let Some(mut clique) = self.cliques[id].take() else { continue };
-            let children = clique
-                .children
-                .iter()
-                .filter_map(|&c| self.cliques[c].as_ref())
-                .map(|c| (c.separator.as_slice(), &c.cached));
-            let result = linear::factor_front(
-                &clique.frontals,
-                &clique.separator,
-                clique.factors.iter().map(|&f| &lin[f]),
-                children,
-                damping,
-                &mut self.scratch,
-                (&mut clique.conditional, &mut clique.cached),
-            );
-            self.cliques[id] = Some(clique);
-            result?;
+        let mut view = CliqueView { low: &mut self.cliques, high: &mut [], high_start: usize::MAX };
+        refactor_view(&mut view, postorder.iter().copied(), lin, damping, &mut self.scratch).map_err(|(_, e)| e)
+    }
+
+    /// The best [`ParallelSplit`] of a tree whose clique ids are a postorder (`id == position`,
+    /// as after a batch commit into an empty tree); `None` for other trees.
+    pub fn plan_split(&self) -> Option<ParallelSplit> {
+        let n = self.cliques.len();
+        // Work of the ids below each id: a subtree is a contiguous id range, so its work is a
+        // difference of two entries.
+        let mut work_before = Vec::with_capacity(n + 1);
+        let mut size = vec![0usize; n];
+        let mut parent = vec![NONE; n];
+        work_before.push(0.0);
+        for id in 0..n {
+            let clique = self.cliques[id].as_ref()?;
+            let mut count = 1;
+            for &c in &clique.children {
+                if c >= id || parent[c] != NONE {
+                    return None;
+                }
+                parent[c] = id;
+                count += size[c];
+            }
+            size[id] = count;
+            let total = work_before[id] + front_flops(clique.frontals.len(), clique.separator.len());
+            work_before.push(total);
         }
-        Ok(())
+        let total = work_before[n];
+        // Work of each clique and its ancestors; parents come after their children.
+        let mut path_work = vec![0.0; n];
+        for id in (0..n).rev() {
+            let own = work_before[id + 1] - work_before[id];
+            path_work[id] = own + if parent[id] == NONE { 0.0 } else { path_work[parent[id]] };
+        }
+        let mut best: Option<(std::ops::Range<usize>, usize, f64)> = None;
+        let mut consider = |children: &[usize], owner: usize| {
+            let ancestors = if owner == NONE { 0.0 } else { path_work[owner] };
+            // Windows of consecutive children (their subtrees lie side by side); only single
+            // children where there are many.
+            let width = if children.len() <= 32 { children.len() } else { 1 };
+            for (i, &first) in children.iter().enumerate() {
+                let start = first + 1 - size[first];
+                for &last in children[i..].iter().take(width) {
+                    let end = last + 1;
+                    let worker = work_before[end] - work_before[start];
+                    let saved = worker.min(total - worker - ancestors);
+                    if best.as_ref().is_none_or(|b| saved > b.2) {
+                        best = Some((start..end, owner, saved));
+                    }
+                }
+            }
+        };
+        for (id, clique) in self.cliques.iter().enumerate() {
+            if let Some(clique) = clique {
+                consider(&clique.children, id);
+            }
+        }
+        consider(&self.roots, NONE);
+        let (worker, owner, saved_flops) = best?;
+        // A window is only valid if its subtrees are exactly the ids in the range.
+        let covered: usize = (worker.start..worker.end).filter(|&c| parent[c] == owner).map(|c| size[c]).sum();
+        if covered != worker.len() {
+            return None;
+        }
+        // Reuse `size` as the mark of the ancestors.
+        let mut ancestors = Vec::new();
+        let mut c = owner;
+        while c != NONE {
+            ancestors.push(c);
+            size[c] = 0;
+            c = parent[c];
+        }
+        let caller = (0..n).filter(|&c| !worker.contains(&c) && size[c] != 0).collect();
+        Some(ParallelSplit { worker, caller, ancestors, saved_flops })
+    }
+
+    /// [`Self::refactor`] of a tree numbered as [`Self::plan_split`] requires, on two threads.
+    /// Each clique's arithmetic is that of the sequential run, so the results are bit-identical,
+    /// and so is the failure reported: the first in postorder.
+    pub fn refactor_split(
+        &mut self,
+        split: &ParallelSplit,
+        lin: &[LinearFactor],
+        damping: Option<Damping<'_>>,
+    ) -> Result<(), NotPositiveDefinite> {
+        let ParallelSplit { worker, caller, ancestors, .. } = split;
+        let mut worker_scratch = std::mem::take(&mut self.worker_scratch);
+        worker_scratch.ensure_vars(self.var_clique.len());
+        let (low_and_worker, high) = self.cliques.split_at_mut(worker.end);
+        let (low, worker_cliques) = low_and_worker.split_at_mut(worker.start);
+        let mut worker_view = CliqueView { low: &mut [], high: worker_cliques, high_start: worker.start };
+        let mut caller_view = CliqueView { low, high, high_start: worker.end };
+        let scratch = &mut self.scratch;
+        let (result_caller, result_worker) = std::thread::scope(|scope| {
+            let handle =
+                scope.spawn(|| refactor_view(&mut worker_view, worker.clone(), lin, damping, &mut worker_scratch));
+            let result_caller = refactor_view(&mut caller_view, caller.iter().copied(), lin, damping, scratch);
+            let result_worker = handle.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
+            (result_caller, result_worker)
+        });
+        self.worker_scratch = worker_scratch;
+        match (result_caller, result_worker) {
+            (Err(a), Err(b)) => return Err(if a.0 < b.0 { a.1 } else { b.1 }),
+            (Err((_, e)), Ok(())) | (Ok(()), Err((_, e))) => return Err(e),
+            (Ok(()), Ok(())) => {}
+        }
+        let mut view = CliqueView { low: &mut self.cliques, high: &mut [], high_start: usize::MAX };
+        refactor_view(&mut view, ancestors.iter().copied(), lin, damping, &mut self.scratch).map_err(|(_, e)| e)
     }
 
     /// Replaces the cliques `removed` by the new ones; orphans are re-parented. Returns the ids
