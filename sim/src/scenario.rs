@@ -23,6 +23,8 @@ use crate::robot::RobotModel;
 use crate::terrain::TerrainConfig;
 use crate::wheel::WheelOdomConfig;
 
+pub mod experiments;
+
 /// Names `preset` accepts.
 pub const PRESETS: &[&str] = &["moon", "mars"];
 
@@ -125,7 +127,7 @@ pub struct Scenario {
 /// Why a scenario could not be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario `{0}` (known: moon, mars)")]
+    #[error("unknown scenario `{0}` (known: moon, mars, {known})", known = experiments::names().join(", "))]
     Unknown(String),
     #[error("{0}")]
     Invalid(String),
@@ -197,38 +199,16 @@ pub fn start_position_m(index: usize, robots: usize) -> [f64; 2] {
     [r * angle.cos(), r * angle.sin()]
 }
 
-/// The preset `name` with `options`.
+/// The preset or experiment `name` with `options` (an experiment: see [`experiments`]).
 pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, ScenarioError> {
+    if let Some(experiment) = experiments::find(name) {
+        return experiments::scenario(experiment, options);
+    }
     let site = site(name).ok_or_else(|| ScenarioError::Unknown(name.to_owned()))?;
     validate(options)?;
-    let mut terrain = site.terrain;
-    if let Some(size) = options.world_size_m {
-        terrain = terrain.with_size(size);
-    }
-    if let Some(density) = options.rocks_per_100m2 {
-        terrain.rocks_per_100m2 = density;
-    }
-    let half_extent = 0.5 * terrain.size_m[0].min(terrain.size_m[1]) - EDGE_MARGIN_M;
+    let layout = Layout::new(site.terrain.clone(), options)?;
     let n = options.robots;
-    let ring = ring_radius_m(n);
-    let ground_station = [0.0, -(ring + 4.0), 2.0];
-    let flyer_start = [0.0, ring + 3.0];
-    if ring + 4.0 > half_extent {
-        return Err(ScenarioError::Invalid(format!(
-            "a team of {n} needs a world of at least {:.0} m",
-            2.0 * (ring + 4.0 + EDGE_MARGIN_M)
-        )));
-    }
-    terrain = if options.rocks_in_hub {
-        (0..n).fold(terrain, |t, i| t.with_clear_area(start_position_m(i, n), START_CLEAR_RADIUS_M))
-    } else {
-        terrain.with_clear_area([0.0, 0.0], ring + 2.5)
-    };
-    terrain = terrain.with_clear_area([ground_station[0], ground_station[1]], 2.0);
-    if options.flyer {
-        terrain = terrain.with_clear_area(flyer_start, 2.0);
-    }
-
+    let half_extent = layout.half_extent_m;
     let camera = StereoCamera::narrow().downscaled(options.downscale);
     // Petals grow with the distance a rover can drive, within the site.
     let petal_radius =
@@ -238,19 +218,11 @@ pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, Scenari
         let mut rng = rng::stream(options.seed, &[streams::PATHS, i as u64]);
         let start = start_position_m(i, n);
         let route = rover_route(&mut rng, start, petal_radius, half_extent, options.duration_s);
-        robots.push(RobotSetup {
-            id: i as u8,
-            name: format!("rover{i}"),
-            model: RobotModel::rover(i as u32, camera),
-            waypoints_m: route,
-            drive: ROVER_DRIVE,
-            tilt_rad: ROVER_TILT_RAD,
-            pan_sweep_rad: ROVER_PAN_SWEEP_RAD,
-        });
+        robots.push(rover_setup(i, camera, route));
     }
     if options.flyer {
         let mut rng = rng::stream(options.seed, &[streams::PATHS, n as u64]);
-        let route = flyer_route(&mut rng, flyer_start, 1.5 * petal_radius, half_extent, options.duration_s);
+        let route = flyer_route(&mut rng, layout.flyer_start_m, 1.5 * petal_radius, half_extent, options.duration_s);
         // Ardea's virtual pinholes cover about 80° horizontally on a 12 cm baseline (thesis §7.1).
         let flyer_camera =
             StereoCamera::with_hfov(crate::camera::FULL_WIDTH_PX, crate::camera::FULL_HEIGHT_PX, 80.0, 0.12)
@@ -265,12 +237,69 @@ pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, Scenari
             pan_sweep_rad: 0.0,
         });
     }
+    Ok(assemble(name, options, site, layout, robots))
+}
 
-    Ok(Scenario {
+/// The site's terrain cleared for a team of `options.robots` (and a flyer), with the ground
+/// station's place.
+struct Layout {
+    terrain: TerrainConfig,
+    half_extent_m: f64,
+    ground_station_m: [f64; 3],
+    flyer_start_m: [f64; 2],
+}
+
+impl Layout {
+    fn new(mut terrain: TerrainConfig, options: &ScenarioOptions) -> Result<Layout, ScenarioError> {
+        if let Some(size) = options.world_size_m {
+            terrain = terrain.with_size(size);
+        }
+        if let Some(density) = options.rocks_per_100m2 {
+            terrain.rocks_per_100m2 = density;
+        }
+        let half_extent_m = 0.5 * terrain.size_m[0].min(terrain.size_m[1]) - EDGE_MARGIN_M;
+        let n = options.robots;
+        let ring = ring_radius_m(n);
+        let ground_station_m = [0.0, -(ring + 4.0), 2.0];
+        let flyer_start_m = [0.0, ring + 3.0];
+        if ring + 4.0 > half_extent_m {
+            return Err(ScenarioError::Invalid(format!(
+                "a team of {n} needs a world of at least {:.0} m",
+                2.0 * (ring + 4.0 + EDGE_MARGIN_M)
+            )));
+        }
+        terrain = if options.rocks_in_hub {
+            (0..n).fold(terrain, |t, i| t.with_clear_area(start_position_m(i, n), START_CLEAR_RADIUS_M))
+        } else {
+            terrain.with_clear_area([0.0, 0.0], ring + 2.5)
+        };
+        terrain = terrain.with_clear_area([ground_station_m[0], ground_station_m[1]], 2.0);
+        if options.flyer {
+            terrain = terrain.with_clear_area(flyer_start_m, 2.0);
+        }
+        Ok(Layout { terrain, half_extent_m, ground_station_m, flyer_start_m })
+    }
+}
+
+/// Rover `index` of the team with `camera` on its head, driving `waypoints_m`.
+fn rover_setup(index: usize, camera: StereoCamera, waypoints_m: Vec<[f64; 3]>) -> RobotSetup {
+    RobotSetup {
+        id: index as u8,
+        name: format!("rover{index}"),
+        model: RobotModel::rover(index as u32, camera),
+        waypoints_m,
+        drive: ROVER_DRIVE,
+        tilt_rad: ROVER_TILT_RAD,
+        pan_sweep_rad: ROVER_PAN_SWEEP_RAD,
+    }
+}
+
+fn assemble(name: &str, options: &ScenarioOptions, site: Site, layout: Layout, robots: Vec<RobotSetup>) -> Scenario {
+    Scenario {
         name: name.to_owned(),
         seed: options.seed,
         body: site.body,
-        terrain,
+        terrain: layout.terrain,
         sun: site.sun,
         reflectance: site.reflectance,
         sky_radiance: site.sky_radiance,
@@ -284,12 +313,12 @@ pub fn preset(name: &str, options: &ScenarioOptions) -> Result<Scenario, Scenari
             max_range_m: 150.0,
             full_quality_range_m: 50.0,
             require_line_of_sight: true,
-            ground_station_m: ground_station,
+            ground_station_m: layout.ground_station_m,
             base: hal::emulator::EmulatorConfig::lossy_wifi(),
             outages_ms: Vec::new(),
         },
         robots,
-    })
+    }
 }
 
 fn clamp_to(p: [f64; 2], half_extent: f64) -> [f64; 2] {

@@ -9,15 +9,20 @@ use std::process::ExitCode;
 
 use onboard::config::{InterRobotConsistency, MarkerModelConfig, MatchModeConfig};
 
+use sim::scenario::experiments;
+
 use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
 
-const USAGE: &str = "usage: sil mission [--robots N] [--scenario moon|mars] [--duration S] [--out DIR]
+const USAGE: &str = "usage: sil mission [--robots N] [--scenario NAME] [--duration S] [--out DIR]
                        [--runner lockstep|process] [--json] [options]
 
   --robots N             rovers in the team (default 2)
-  --scenario NAME        simulated site: moon or mars (default moon)
-  --duration S           simulated seconds (default 120)
-  --seed N               world and sensor noise seed (default 1)
+  --scenario NAME        a site (moon, mars: rosettes of petals for any team size) or a named
+                         2-robot experiment after the thesis's (lab-rocks, loops, loops-mars,
+                         double-loop, leave-reenter, hetero-cameras); `--scenario list`
+                         describes them (default moon)
+  --duration S           simulated seconds (default 120; an experiment's own length, at most)
+  --seed N               world and sensor noise seed (default 1; an experiment's own)
   --downscale K          camera resolution 1024x508 / K, K in 1, 2, 4 (default 4)
   --out DIR              output folder (default runs/demo): per robot robotN/ with
                          estimate.tum, truth.tum, graph.g2o, map.ply, map.bt, map.png;
@@ -88,6 +93,8 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     let mut options = MissionOptions::default();
     let mut json = false;
     let mut matching: Option<Option<MatchModeConfig>> = None;
+    let mut duration_s = None;
+    let mut seed = None;
     let text = |parser: &mut lexopt::Parser, name: &str| -> Result<String, String> {
         let value = parser.value().map_err(|e| e.to_string())?;
         value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
@@ -104,14 +111,14 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             Long("scenario") => options.scenario = text(&mut parser, "--scenario")?,
             Long("duration") => {
                 let v = text(&mut parser, "--duration")?;
-                options.duration_s = match v.parse::<f64>() {
+                duration_s = Some(match v.parse::<f64>() {
                     Ok(s) if s.is_finite() && s >= 5.0 => s,
                     _ => return Err(format!("--duration: expected at least 5 seconds, got {v:?}")),
-                };
+                });
             }
             Long("seed") => {
                 let v = text(&mut parser, "--seed")?;
-                options.seed = v.parse().map_err(|_| format!("--seed: expected an integer, got {v:?}"))?;
+                seed = Some(v.parse().map_err(|_| format!("--seed: expected an integer, got {v:?}"))?);
             }
             Long("downscale") => {
                 let v = text(&mut parser, "--downscale")?;
@@ -232,8 +239,27 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
         None if options.truth_loop_closures => None,
         None => options.matching,
     };
-    if !matches!(options.scenario.as_str(), "moon" | "mars") {
-        return Err(format!("--scenario: expected moon or mars, got {:?}", options.scenario));
+    if let Some(experiment) = experiments::find(&options.scenario) {
+        if options.robots != 2 {
+            return Err(format!(
+                "--scenario {}: a 2-robot experiment, got --robots {}",
+                experiment.name, options.robots
+            ));
+        }
+        if duration_s.is_some_and(|d| d > experiment.duration_s) {
+            return Err(format!("--duration: experiment {} lasts {} s", experiment.name, experiment.duration_s));
+        }
+        options.duration_s = duration_s.unwrap_or(experiment.duration_s);
+        options.seed = seed.unwrap_or(experiment.seed);
+    } else if matches!(options.scenario.as_str(), "moon" | "mars") {
+        options.duration_s = duration_s.unwrap_or(options.duration_s);
+        options.seed = seed.unwrap_or(options.seed);
+    } else {
+        return Err(format!(
+            "--scenario: expected moon, mars, {} or list, got {:?}",
+            experiments::names().join(", "),
+            options.scenario
+        ));
     }
     if options.truth_loop_closures && options.runner == Runner::Process {
         return Err(
@@ -255,7 +281,31 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     Ok(Some((options, json)))
 }
 
+/// Whether `args` ask for the list of scenarios (`--scenario list`).
+fn asks_for_list(args: &[OsString]) -> bool {
+    args.windows(2).any(|w| w[0] == "--scenario" && w[1] == "list") || args.iter().any(|a| a == "--scenario=list")
+}
+
+/// The scenarios, one paragraph each.
+pub fn scenario_list() -> String {
+    let mut text = String::from(
+        "sites (any team size; each rover explores a seeded rosette of petals from a shared hub):\n  \
+         moon, mars\n\nexperiments (2 rovers; after the thesis's multi-robot evaluation, §8.3):\n",
+    );
+    for e in experiments::EXPERIMENTS {
+        text.push_str(&format!(
+            "  {:<15} {} site, {:.0} s, seed {}, {} rocks/100 m²\n  {:<15} {}\n  {:<15} after {}\n",
+            e.name, e.site, e.duration_s, e.seed, e.rocks_per_100m2, "", e.summary, "", e.after
+        ));
+    }
+    text
+}
+
 pub fn main(args: Vec<OsString>) -> ExitCode {
+    if asks_for_list(&args) {
+        print!("{}", scenario_list());
+        return ExitCode::SUCCESS;
+    }
     let run = |(options, _json): &(MissionOptions, bool)| -> Result<MissionReport, String> {
         crate::mission::run(options).map_err(|e| e.to_string())
     };
@@ -278,6 +328,33 @@ mod tests {
 
     use super::*;
     use proptest::prelude::*;
+
+    fn parse(args: &[&str]) -> Result<MissionOptions, String> {
+        parse_args(args.iter().map(OsString::from).collect()).map(|o| o.unwrap().0)
+    }
+
+    #[test]
+    fn experiments_bring_their_length_and_seed() {
+        let loops = parse(&["--scenario", "loops"]).unwrap();
+        assert_eq!((loops.duration_s, loops.seed), (600.0, 12));
+        let short = parse(&["--scenario", "loops", "--duration", "30", "--seed", "5"]).unwrap();
+        assert_eq!((short.duration_s, short.seed), (30.0, 5));
+        let site = parse(&["--scenario", "mars"]).unwrap();
+        assert_eq!((site.duration_s, site.seed), (120.0, 1));
+        for (args, needle) in [
+            (&["--scenario", "loops", "--duration", "601"][..], "lasts 600 s"),
+            (&["--scenario", "loops", "--robots", "3"][..], "2-robot"),
+            (&["--scenario", "venus"][..], "hetero-cameras"),
+        ] {
+            let error = parse(args).unwrap_err();
+            assert!(error.contains(needle), "{args:?}: {error}");
+        }
+        assert!(asks_for_list(&["--scenario".into(), "list".into()]));
+        let list = scenario_list();
+        for e in experiments::EXPERIMENTS {
+            assert!(list.contains(e.name) && list.contains(e.after), "{list}");
+        }
+    }
 
     #[test]
     fn outages_are_start_end_seconds() {
