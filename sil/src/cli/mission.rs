@@ -5,6 +5,7 @@
 //! Exit codes: 0 success, 1 runtime error, 2 usage error.
 
 use std::ffi::OsString;
+use std::io::IsTerminal;
 use std::process::ExitCode;
 
 use onboard::config::{InterRobotConsistency, MarkerModelConfig, MatchModeConfig};
@@ -278,6 +279,8 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     if let Some(fault) = options.faults.iter().find(|f| f.robot >= options.robots) {
         return Err(format!("--kill: robot index {} of {} robots", fault.robot, options.robots));
     }
+    // A line on a terminal, none in a pipe or a log, none around the JSON object.
+    options.progress = !json && std::io::stderr().is_terminal();
     Ok(Some((options, json)))
 }
 

@@ -28,6 +28,7 @@ use protocol::{NodeId, RobotId};
 use sim::driver::SimSensorSource;
 use sim::world::World;
 
+use super::progress::{Progress, RobotProgress, path_length_m};
 use super::report::{MissionReport, ProcessReport, RobotReport};
 use super::screening::ClosureScreening;
 use super::world::{
@@ -162,6 +163,19 @@ fn step_ground(ground: &mut GroundEnd, robots: &mut [MissionRobot], now_ns: u64)
     Ok(())
 }
 
+/// What robot `r` has so far, for the progress line.
+fn robot_progress(r: &MissionRobot) -> RobotProgress {
+    let mapper = &r.stack.mapper;
+    RobotProgress {
+        robot: robot_id(r.robot),
+        distance_m: path_length_m(mapper.online_trajectory()),
+        submaps: mapper.counters().submaps_finished,
+        matches: mapper.matcher().map_or(0, |m| m.stats().accepted),
+        detections: mapper.counters().marker_detections,
+        connected: mapper.team_estimate().connected_robots(),
+    }
+}
+
 /// Runs the mission of `options` on the lockstep runner and writes its outputs.
 pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     let wall = Instant::now();
@@ -201,8 +215,12 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     let camera_period_ns = (1e9 / world.scenario.camera_rate_hz).round() as u64;
     let end_ns = (options.duration_s * 1e9) as u64;
     let mut now_ns = 0;
+    let mut progress = Progress::new(options.progress, options.duration_s);
     while now_ns <= end_ns {
         step_robots(&mut robots, now_ns, options.step_threads)?;
+        if progress.due() {
+            progress.draw(now_ns as f64 * 1e-9, &robots.iter().map(robot_progress).collect::<Vec<_>>());
+        }
         if let Some(truth) = &mut truth {
             for r in &mut robots {
                 for message in r.stack.bus.take_tapped() {
@@ -235,6 +253,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         step_ground(&mut ground, &mut robots, now_ns)?;
         now_ns += STEP_NS;
     }
+    progress.finish();
     let mut robot_reports = Vec::new();
     let mut processes = Vec::new();
     for r in &mut robots {

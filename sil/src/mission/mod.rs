@@ -6,6 +6,7 @@
 pub mod lockstep;
 pub mod matching;
 pub mod process;
+pub mod progress;
 pub mod report;
 pub mod score;
 pub mod screening;
@@ -103,6 +104,9 @@ pub struct MissionOptions {
     /// Lockstep runner: threads that step the robots between its barriers (1: one robot after
     /// the other). The outputs do not depend on it.
     pub step_threads: usize,
+    /// Lockstep runner: redraw a progress line on standard error (the CLI sets it on a terminal
+    /// without `--json`).
+    pub progress: bool,
 }
 
 impl Default for MissionOptions {
@@ -132,6 +136,7 @@ impl Default for MissionOptions {
             faults: Vec::new(),
             submap_max_distance_m: None,
             step_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            progress: false,
         }
     }
 }
