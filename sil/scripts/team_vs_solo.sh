@@ -26,7 +26,7 @@ for world in ${WORLDS:-moon mars}; do
             esac
             dir="$out/$world-s$seed-$variant"
             ./target/release/sil mission --scenario "$world" --seed "$seed" --duration "$seconds" \
-                "${extra[@]}" --out "$dir" >"$dir.log" 2>&1 \
+                --downscale "${DOWNSCALE:-4}" "${extra[@]}" --out "$dir" >"$dir.log" 2>&1 \
                 || echo "run $world $seed $variant failed: see $dir.log" >&2 &
             running=$((running + 1))
             if [ "$running" -ge "${JOBS:-2}" ]; then

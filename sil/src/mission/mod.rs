@@ -116,7 +116,7 @@ impl Default for MissionOptions {
             scenario: "moon".to_owned(),
             duration_s: 120.0,
             seed: 1,
-            downscale: 4,
+            downscale: 1,
             out: PathBuf::from("runs/demo"),
             runner: Runner::Lockstep,
             radio: RadioPreset::SerialRadio,
