@@ -180,6 +180,14 @@ pub fn sim_marker_lut(width_px: u32, height_px: u32, size_m: f64) -> Option<Path
     path.exists().then_some(path)
 }
 
+/// Whether the table at `path` was made for `camera` and `size_m` tags (an unreadable one is not).
+fn table_fits(path: &Path, camera: &StereoCalibration, size_m: f64) -> bool {
+    std::fs::read(path)
+        .ok()
+        .and_then(|bytes| vision::marker_pose::MarkerLut::decode(&bytes).ok())
+        .is_some_and(|lut| vision::marker_pose::check_lut(&lut, &camera.left.intrinsics, size_m).is_ok())
+}
+
 /// The team's tag mountings as the rover design states them (the simulator's rovers are all
 /// alike: tag `3j + k` of robot `j` at the same place for every `j`), the tag size, and the
 /// detector on: the thesis's model (table + online sampling) where the robot's camera has a
@@ -196,7 +204,10 @@ pub fn configure_sim_markers(config: &mut RoverConfig, scenario: &Scenario, came
     config.markers.size_m = markers[0].size_m;
     config.markers.mounting = markers.iter().map(|m| PoseConfig::from_isometry(&m.t_body_marker)).collect();
     config.markers.detect = true;
-    config.markers.lut = sim_marker_lut(camera.left.width_px, camera.left.height_px, config.markers.size_m);
+    // Tables are named by resolution only; the wide head has the narrow one's resolution with
+    // other intrinsics, so a table is taken only if it was made for this camera.
+    config.markers.lut = sim_marker_lut(camera.left.width_px, camera.left.height_px, config.markers.size_m)
+        .filter(|path| table_fits(path, camera, config.markers.size_m));
     config.markers.model =
         if config.markers.lut.is_some() { MarkerModelConfig::LutOnline } else { MarkerModelConfig::Online };
 }

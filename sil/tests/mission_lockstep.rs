@@ -103,3 +103,26 @@ fn solo_robots_stay_alone() {
     assert_eq!(json["solo"], true);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A named experiment runs through the same mission: its own site, rocks in the shared area,
+/// the heterogeneous pair's cameras, and the rovers meet at the start.
+#[test]
+fn the_heterogeneous_experiment_runs_with_both_cameras_and_connects() {
+    let dir = std::env::temp_dir().join(format!("onboard-mission-experiment-{}", std::process::id()));
+    let options = MissionOptions { scenario: "hetero-cameras".to_owned(), duration_s: 20.0, seed: 16, ..options(&dir) };
+    let report = mission::run(&options).unwrap();
+    assert_eq!(report.scenario, "hetero-cameras");
+    // Each robot's configuration carries its own camera: the wide head's focal length is less
+    // than half the narrow one's (tan(56.4°) / tan(25.3°) = 3.2 for the same width).
+    let focal = |robot: &str| -> f64 {
+        let text = std::fs::read_to_string(dir.join(robot).join("rover.toml")).unwrap();
+        let config: toml::Table = text.parse().unwrap();
+        config["camera"]["calibration"]["left"]["intrinsics"]["fx_px"].as_float().unwrap()
+    };
+    let (narrow, wide) = (focal("robot0"), focal("robot1"));
+    assert!(narrow / wide > 3.0 && narrow / wide < 3.4, "focal lengths {narrow} and {wide} px");
+    for robot in &report.robots {
+        assert_eq!(robot.connected, vec![1, 2], "robot {} is connected to {:?}", robot.robot, robot.connected);
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
