@@ -29,7 +29,8 @@ usage: sim <subcommand> [options]
   sim record --scenario NAME --out DIR [options]
       Records every robot of a scenario as a EuRoC/ASL dataset in DIR/robot<id>/mav0/ and the
       world's ground truth in DIR/world/.
-      --scenario NAME    moon or mars
+      --scenario NAME    moon or mars, or a 2-robot experiment (lab-rocks, loops, loops-mars,
+                         double-loop, leave-reenter, hetero-cameras; `sil mission --scenario list`)
       --out DIR          output folder (its robot<id>/ and world/ must not exist yet)
       --robots N         rovers in the team (default 2)
       --duration S       length of the run in seconds (default 60)
@@ -139,8 +140,9 @@ fn parse_record(args: Vec<OsString>) -> Result<Option<RecordArgs>, CliError> {
         }
     }
     let scenario = scenario.ok_or_else(|| missing("scenario"))?;
-    if !PRESETS.contains(&scenario.as_str()) {
-        return Err(CliError::Usage(format!("unknown scenario `{scenario}` (known: {})", PRESETS.join(", "))));
+    if !PRESETS.contains(&scenario.as_str()) && scenario::experiments::find(&scenario).is_none() {
+        let known = [PRESETS, &scenario::experiments::names()].concat().join(", ");
+        return Err(CliError::Usage(format!("unknown scenario `{scenario}` (known: {known})")));
     }
     if options.robots == 0 {
         return Err(CliError::Usage("--robots must be at least 1".to_owned()));

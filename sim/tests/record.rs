@@ -327,6 +327,8 @@ fn usage_errors_exit_2_and_runtime_errors_exit_1() {
         &["record", "--scenario", "moon", "--out", out, "--duration", "-1"],
         &["record", "--scenario", "moon", "--out", out, "--downscale", "0"],
         &["record", "--scenario", "moon", "--out", out, "--colour"],
+        // An experiment is for two robots.
+        &["record", "--scenario", "loops", "--out", out, "--robots", "3"],
         &["pictures"],
         &["pictures", "--out", out, "--width", "3"],
     ];
@@ -337,6 +339,9 @@ fn usage_errors_exit_2_and_runtime_errors_exit_1() {
     }
     assert!(!Path::new(out).exists(), "a usage error wrote files");
     assert_eq!(run(&["help"]).status.code(), Some(0));
+    let unknown = run(&["record", "--scenario", "pluto", "--out", out]);
+    let message = String::from_utf8_lossy(&unknown.stderr);
+    assert!(message.contains("moon") && message.contains("leave-reenter"), "{message}");
 
     // Recording over an existing recording would mix two runs' files: refused before any work.
     let existing = shared_run().to_str().unwrap();
