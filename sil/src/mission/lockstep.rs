@@ -29,7 +29,7 @@ use sim::driver::SimSensorSource;
 use sim::world::World;
 
 use super::progress::{Progress, RobotProgress, path_length_m};
-use super::report::{MissionReport, ProcessReport, RobotReport};
+use super::report::{LinkTraffic, MissionReport, ProcessReport, RobotReport, SubmapTraffic};
 use super::screening::ClosureScreening;
 use super::world::{
     inter_robot_errors, marker_model_name, mission_world, robot_config, robot_id, truth_at_captures, truth_in_own_frame,
@@ -48,6 +48,42 @@ pub const GROUND_FEED_LOG: &str = "ground_feed.log";
 pub struct MissionRobot {
     pub robot: usize,
     pub stack: RobotStack,
+}
+
+/// A robot's own submap traffic from its comms counters, and the encoded size of the submaps it
+/// persisted (`robotN/state/submaps/*.subm`).
+fn submap_traffic(
+    comms: &onboard::nodes::comms::CommsStats,
+    submaps: u64,
+    robot_dir: &Path,
+) -> Result<SubmapTraffic, MissionError> {
+    let traffic = |by_class: &BTreeMap<&'static str, onboard::nodes::comms::ClassTraffic>| {
+        ["SubmapHeader", "SubmapChunk"].iter().filter_map(|c| by_class.get(c)).fold(LinkTraffic::default(), |t, c| {
+            LinkTraffic {
+                packets: t.packets + c.packets,
+                wire_bytes: t.wire_bytes + c.wire_bytes,
+                retransmissions: t.retransmissions + c.retransmissions,
+            }
+        })
+    };
+    let (all, ground) = (traffic(&comms.sent_by_class), traffic(&comms.ground_sent_by_class));
+    let team = LinkTraffic {
+        packets: all.packets - ground.packets,
+        wire_bytes: all.wire_bytes - ground.wire_bytes,
+        retransmissions: all.retransmissions - ground.retransmissions,
+    };
+    let dir = robot_dir.join("state").join("submaps");
+    let io = |e| MissionError::Io { path: dir.clone(), source: e };
+    let mut payload_bytes = 0;
+    if dir.is_dir() {
+        for entry in std::fs::read_dir(&dir).map_err(io)? {
+            let entry = entry.map_err(io)?;
+            if entry.path().extension().is_some_and(|e| e == "subm") {
+                payload_bytes += entry.metadata().map_err(io)?.len();
+            }
+        }
+    }
+    Ok(SubmapTraffic { submaps, payload_bytes, team, ground })
 }
 
 fn self_robot(robot: usize) -> String {
@@ -330,6 +366,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             markers_published: stack.vision.summary().markers.published,
             marker_detections: stack.mapper.counters().marker_detections,
             inter_robot_error_m,
+            submap_traffic: Some(submap_traffic(&comms, stack.mapper.counters().submaps_finished, &robot_dir)?),
             matching: stack.mapper.matcher().map(|m| {
                 let mut report = super::matching::MatchingReport::new(m, &true_origin);
                 if options.compare_match_modes {

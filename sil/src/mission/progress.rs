@@ -26,6 +26,7 @@ pub struct RobotProgress {
 
 /// The progress line of a mission of `duration_s` simulated seconds, drawn to standard error
 /// when enabled.
+#[derive(Debug)]
 pub struct Progress {
     enabled: bool,
     duration_s: f64,
