@@ -441,3 +441,43 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     super::write_report(out, &report)?;
     Ok(report)
 }
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use onboard::nodes::comms::{ClassTraffic, CommsStats};
+
+    use super::*;
+
+    /// Team traffic is everything on the links minus the ground's, only submap classes count,
+    /// and the payload is what the `.subm` files hold (other files in the folder are not).
+    #[test]
+    fn submap_traffic_splits_team_from_ground_and_counts_the_subm_files() {
+        let dir = std::env::temp_dir().join(format!("sil-submap-traffic-{}", std::process::id()));
+        let submaps = dir.join("state").join("submaps");
+        std::fs::create_dir_all(&submaps).unwrap();
+        std::fs::write(submaps.join("00000000.subm"), [0u8; 300]).unwrap();
+        std::fs::write(submaps.join("00000001.subm"), [0u8; 200]).unwrap();
+        std::fs::write(submaps.join("notes.txt"), [0u8; 1000]).unwrap();
+        let class = |packets, wire_bytes, retransmissions| ClassTraffic {
+            packets,
+            packet_bytes: wire_bytes,
+            wire_bytes,
+            retransmissions,
+        };
+        let mut stats = CommsStats::default();
+        stats.sent_by_class.insert("SubmapChunk", class(10, 11_000, 2));
+        stats.sent_by_class.insert("SubmapHeader", class(2, 200, 0));
+        stats.sent_by_class.insert("PoseEstimate", class(50, 5_000, 0));
+        stats.ground_sent_by_class.insert("SubmapChunk", class(4, 4_400, 1));
+        stats.ground_sent_by_class.insert("SubmapHeader", class(1, 100, 0));
+        let t = submap_traffic(&stats, 2, &dir).unwrap();
+        assert_eq!(t.submaps, 2);
+        assert_eq!(t.payload_bytes, 500);
+        assert_eq!(t.ground, LinkTraffic { packets: 5, wire_bytes: 4_500, retransmissions: 1 });
+        assert_eq!(t.team, LinkTraffic { packets: 7, wire_bytes: 6_700, retransmissions: 1 });
+        assert!((t.wire_bytes_per_s(2.0) - 5_600.0).abs() < 1e-9);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
