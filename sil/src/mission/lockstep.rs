@@ -29,7 +29,7 @@ use sim::driver::SimSensorSource;
 use sim::world::World;
 
 use super::progress::{Progress, RobotProgress, path_length_m};
-use super::report::{MissionReport, ProcessReport, RobotReport};
+use super::report::{LinkTraffic, MissionReport, ProcessReport, RobotReport, SubmapTraffic};
 use super::screening::ClosureScreening;
 use super::world::{
     inter_robot_errors, marker_model_name, mission_world, robot_config, robot_id, truth_at_captures, truth_in_own_frame,
@@ -48,6 +48,42 @@ pub const GROUND_FEED_LOG: &str = "ground_feed.log";
 pub struct MissionRobot {
     pub robot: usize,
     pub stack: RobotStack,
+}
+
+/// A robot's own submap traffic from its comms counters, and the encoded size of the submaps it
+/// persisted (`robotN/state/submaps/*.subm`).
+fn submap_traffic(
+    comms: &onboard::nodes::comms::CommsStats,
+    submaps: u64,
+    robot_dir: &Path,
+) -> Result<SubmapTraffic, MissionError> {
+    let traffic = |by_class: &BTreeMap<&'static str, onboard::nodes::comms::ClassTraffic>| {
+        ["SubmapHeader", "SubmapChunk"].iter().filter_map(|c| by_class.get(c)).fold(LinkTraffic::default(), |t, c| {
+            LinkTraffic {
+                packets: t.packets + c.packets,
+                wire_bytes: t.wire_bytes + c.wire_bytes,
+                retransmissions: t.retransmissions + c.retransmissions,
+            }
+        })
+    };
+    let (all, ground) = (traffic(&comms.sent_by_class), traffic(&comms.ground_sent_by_class));
+    let team = LinkTraffic {
+        packets: all.packets - ground.packets,
+        wire_bytes: all.wire_bytes - ground.wire_bytes,
+        retransmissions: all.retransmissions - ground.retransmissions,
+    };
+    let dir = robot_dir.join("state").join("submaps");
+    let io = |e| MissionError::Io { path: dir.clone(), source: e };
+    let mut payload_bytes = 0;
+    if dir.is_dir() {
+        for entry in std::fs::read_dir(&dir).map_err(io)? {
+            let entry = entry.map_err(io)?;
+            if entry.path().extension().is_some_and(|e| e == "subm") {
+                payload_bytes += entry.metadata().map_err(io)?.len();
+            }
+        }
+    }
+    Ok(SubmapTraffic { submaps, payload_bytes, team, ground })
 }
 
 fn self_robot(robot: usize) -> String {
@@ -330,6 +366,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
             markers_published: stack.vision.summary().markers.published,
             marker_detections: stack.mapper.counters().marker_detections,
             inter_robot_error_m,
+            submap_traffic: Some(submap_traffic(&comms, stack.mapper.counters().submaps_finished, &robot_dir)?),
             matching: stack.mapper.matcher().map(|m| {
                 let mut report = super::matching::MatchingReport::new(m, &true_origin);
                 if options.compare_match_modes {
@@ -403,4 +440,44 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     };
     super::write_report(out, &report)?;
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use onboard::nodes::comms::{ClassTraffic, CommsStats};
+
+    use super::*;
+
+    /// Team traffic is everything on the links minus the ground's, only submap classes count,
+    /// and the payload is what the `.subm` files hold (other files in the folder are not).
+    #[test]
+    fn submap_traffic_splits_team_from_ground_and_counts_the_subm_files() {
+        let dir = std::env::temp_dir().join(format!("sil-submap-traffic-{}", std::process::id()));
+        let submaps = dir.join("state").join("submaps");
+        std::fs::create_dir_all(&submaps).unwrap();
+        std::fs::write(submaps.join("00000000.subm"), [0u8; 300]).unwrap();
+        std::fs::write(submaps.join("00000001.subm"), [0u8; 200]).unwrap();
+        std::fs::write(submaps.join("notes.txt"), [0u8; 1000]).unwrap();
+        let class = |packets, wire_bytes, retransmissions| ClassTraffic {
+            packets,
+            packet_bytes: wire_bytes,
+            wire_bytes,
+            retransmissions,
+        };
+        let mut stats = CommsStats::default();
+        stats.sent_by_class.insert("SubmapChunk", class(10, 11_000, 2));
+        stats.sent_by_class.insert("SubmapHeader", class(2, 200, 0));
+        stats.sent_by_class.insert("PoseEstimate", class(50, 5_000, 0));
+        stats.ground_sent_by_class.insert("SubmapChunk", class(4, 4_400, 1));
+        stats.ground_sent_by_class.insert("SubmapHeader", class(1, 100, 0));
+        let t = submap_traffic(&stats, 2, &dir).unwrap();
+        assert_eq!(t.submaps, 2);
+        assert_eq!(t.payload_bytes, 500);
+        assert_eq!(t.ground, LinkTraffic { packets: 5, wire_bytes: 4_500, retransmissions: 1 });
+        assert_eq!(t.team, LinkTraffic { packets: 7, wire_bytes: 6_700, retransmissions: 1 });
+        assert!((t.wire_bytes_per_s(2.0) - 5_600.0).abs() < 1e-9);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

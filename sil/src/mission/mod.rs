@@ -12,7 +12,7 @@ pub mod score;
 pub mod screening;
 pub mod world;
 
-pub use report::{MissionReport, ProcessReport, RobotReport, TeamScore};
+pub use report::{LinkTraffic, MissionReport, ProcessReport, RobotReport, SubmapTraffic, TeamScore};
 pub use score::{TrajectoryScore, score};
 
 use std::net::SocketAddr;

@@ -510,6 +510,7 @@ fn robot_report(
         marker_detections: u64_at(&mapper, "marker_detections"),
         // The graphs live in the robots' processes: no graph here to place the other robots.
         inter_robot_error_m: Default::default(),
+        submap_traffic: None,
         // Counts only: the matches' truth needs the submaps' stamps, which stay in the processes.
         matching: mapper.get("matching").filter(|m| !m.is_null()).map(|m| super::matching::MatchingReport {
             submaps_checked: u64_at(m, "submaps_checked"),

@@ -35,6 +35,53 @@ pub struct RobotReport {
     pub inter_robot_error_m: BTreeMap<u16, f64>,
     /// The submap matcher's attempts and matches (`None`: it did not run).
     pub matching: Option<super::matching::MatchingReport>,
+    /// What this robot's own submaps cost on its links (`None`: not measured, the process
+    /// runner's comms stats file has no per-link split).
+    pub submap_traffic: Option<SubmapTraffic>,
+}
+
+/// One robot's submap traffic: `SubmapHeader` and `SubmapChunk` packets it put on its links,
+/// against the encoded size of the submaps it finished (issue 28: bytes as measured).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SubmapTraffic {
+    /// Own finished submaps and their encoded bytes (the `.subm` files: one copy's payload).
+    pub submaps: u64,
+    pub payload_bytes: u64,
+    /// To the other robots (every team link) and to the ground.
+    pub team: LinkTraffic,
+    pub ground: LinkTraffic,
+}
+
+/// Packets of one kind on one class of link.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LinkTraffic {
+    pub packets: u64,
+    /// What the packets cost on the link, framing included, retransmissions included.
+    pub wire_bytes: u64,
+    pub retransmissions: u64,
+}
+
+impl LinkTraffic {
+    fn to_json(self) -> Value {
+        json!({"packets": self.packets, "wire_bytes": self.wire_bytes, "retransmissions": self.retransmissions})
+    }
+}
+
+impl SubmapTraffic {
+    /// All links' wire bytes per second of mission.
+    pub fn wire_bytes_per_s(&self, duration_s: f64) -> f64 {
+        (self.team.wire_bytes + self.ground.wire_bytes) as f64 / duration_s.max(f64::MIN_POSITIVE)
+    }
+
+    fn to_json(self, duration_s: f64) -> Value {
+        json!({
+            "submaps": self.submaps,
+            "payload_bytes": self.payload_bytes,
+            "team": self.team.to_json(),
+            "ground": self.ground.to_json(),
+            "wire_bytes_per_s": self.wire_bytes_per_s(duration_s),
+        })
+    }
 }
 
 /// The fixed-rate task of one process, as its task file reports it (process runner only: the
@@ -200,6 +247,7 @@ impl MissionReport {
                     "marker_detections": r.marker_detections,
                     "inter_robot_error_m": r.inter_robot_error_m,
                     "matching": r.matching.as_ref().map(super::matching::MatchingReport::to_json),
+                    "submap_traffic": r.submap_traffic.map(|t| t.to_json(self.duration_s)),
                 })
             })
             .collect();
@@ -426,6 +474,27 @@ impl MissionReport {
         }
         if let Some(e) = &self.pair_evaluation {
             let _ = writeln!(out, "\n## Pair evaluation\n\n{}", e.summary_line());
+        }
+        if self.robots.iter().any(|r| r.submap_traffic.is_some()) {
+            out.push_str(
+                "\n## Submap traffic (own submaps, header and chunks, framing included)\n\n| robot | submaps | encoded bytes | team wire bytes (retransmitted packets) | ground wire bytes (retransmitted packets) | all links bytes/s |\n|---|---|---|---|---|---|\n",
+            );
+            for r in &self.robots {
+                if let Some(t) = &r.submap_traffic {
+                    let _ = writeln!(
+                        out,
+                        "| {} | {} | {} | {} ({}) | {} ({}) | {:.0} |",
+                        r.robot,
+                        t.submaps,
+                        t.payload_bytes,
+                        t.team.wire_bytes,
+                        t.team.retransmissions,
+                        t.ground.wire_bytes,
+                        t.ground.retransmissions,
+                        t.wire_bytes_per_s(self.duration_s)
+                    );
+                }
+            }
         }
         out.push_str("\n## Bytes sent per message class\n\n| robot | class | bytes |\n|---|---|---|\n");
         for r in &self.robots {
