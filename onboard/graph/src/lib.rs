@@ -1,7 +1,7 @@
 //! Pose-graph back-end of the on-board mapper (thesis §4.2): SE(3) variables, prior and
 //! between factors with full 6×6 information and optional robust kernels, batch
 //! Levenberg–Marquardt, iSAM2-style incremental updates on a Bayes tree of cliques, marginal
-//! covariances, and g2o import/export.
+//! covariances, g2o import/export, and seeded synthetic torus and lattice graphs.
 //!
 //! Conventions (shared with the whole project):
 //! - A pose `t_a_b` is frame `b` in frame `a`, as `nalgebra::Isometry3<f64>`.
@@ -28,6 +28,7 @@ mod linear;
 mod numdiff;
 pub mod ordering;
 pub mod se3;
+pub mod synthetic;
 pub mod values;
 
 pub use batch::{LmParams, LmSummary, Termination, marginal_covariances, optimize, total_cost};

@@ -16,7 +16,7 @@ use proptest::test_runner::Config;
 const DATA_DIR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/posegraph");
 
 /// File, dimension, vertex records, edge records (counted with `awk '{print $1}' | uniq -c`).
-const FILES: [(&str, Dimension, usize, usize); 10] = [
+const FILES: [(&str, Dimension, usize, usize); 12] = [
     ("sphere2500.g2o", Dimension::Three, 2500, 4949),
     ("parking-garage.g2o", Dimension::Three, 1661, 6275),
     ("smallGrid3D.g2o", Dimension::Three, 125, 297),
@@ -27,6 +27,8 @@ const FILES: [(&str, Dimension, usize, usize); 10] = [
     ("CSAIL.g2o", Dimension::Two, 0, 1172),
     ("manhattan.g2o", Dimension::Two, 0, 5453),
     ("sphere2500_groundtruth.g2o", Dimension::Three, 0, 4949),
+    ("torus3D_gen.g2o", Dimension::Three, 5000, 9058),
+    ("grid3D_gen.g2o", Dimension::Three, 8000, 22204),
 ];
 
 fn read_data(name: &str) -> String {
