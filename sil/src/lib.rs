@@ -11,6 +11,7 @@
 //!   firmware's nodes, and the multi-robot SLAM evaluation on it.
 //! - [`vio_score`]: scoring `onboard vio`'s estimate on a dataset against its ground truth.
 
+pub mod campaign;
 pub mod cli;
 pub mod ground_end;
 pub mod mission;

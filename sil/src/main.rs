@@ -1,5 +1,6 @@
 //! `sil`: the software-in-the-loop harness. Subcommands:
 //! - `mission`: the simulated multi-robot mission (the project's main job);
+//! - `campaign`: the named experiments in every variant, one report in the thesis's form;
 //! - `run`, `node`: the firmware's supervisor and processes (`onboard run`, `onboard node`) with
 //!   the simulator as the sensor source, for a rover configuration with `driver.kind = "sim"`;
 //! - `vio`: `onboard vio` on a dataset, scored against its ground truth.
@@ -12,6 +13,7 @@ const USAGE: &str = "usage: sil <command> [options]
 
 commands:
   mission     simulated multi-robot mission: every robot's on-board stack, links, maps, report
+  campaign    the named experiments in every variant (team, solo, truth): one report.md
   run         the firmware's supervisor for a simulated rover (driver.kind = \"sim\")
   node        one firmware process of a simulated rover, started by `run`
   vio         `onboard vio` on a EuRoC/ASL or KITTI dataset, scored against ground truth (--gt)
@@ -27,6 +29,7 @@ fn main() -> ExitCode {
     let rest: Vec<std::ffi::OsString> = args.collect();
     match command.to_str() {
         Some("mission") => sil::cli::mission::main(rest),
+        Some("campaign") => sil::cli::campaign::main(rest),
         Some("run") => onboard::cli::run::main("sil", rest),
         Some("node") => onboard::cli::node::main("sil", rest, &SimSources),
         Some("vio") => sil::cli::vio::main(rest),

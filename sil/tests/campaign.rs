@@ -1,0 +1,50 @@
+//! `sil campaign` on the beginning of one experiment in all three variants: each variant's
+//! mission runs with its own back-end and the report puts them side by side.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use sil::campaign::{self, CampaignOptions, Variant};
+use sim::scenario::experiments;
+
+#[test]
+fn a_campaign_runs_every_variant_and_reports_them_side_by_side() {
+    let out = std::env::temp_dir().join(format!("sil-campaign-{}", std::process::id()));
+    let options = CampaignOptions {
+        out: out.clone(),
+        experiments: vec![experiments::find("lab-rocks").unwrap()],
+        variants: Variant::ALL.to_vec(),
+        downscale: 4,
+        duration_s: Some(15.0),
+        step_threads: 2,
+        progress: false,
+    };
+    let result = campaign::run(&options).unwrap();
+    assert_eq!(result.runs.len(), 3);
+    for run in &result.runs {
+        let dir = out.join("lab-rocks").join(run.variant.name());
+        assert!(dir.join("report.json").exists(), "{} has no report", dir.display());
+        assert_eq!(run.report.scenario, "lab-rocks");
+        assert_eq!(run.report.duration_s, 15.0);
+        for robot in &run.report.robots {
+            // Alone, a robot's frame holds only itself; with the radio the two meet at the start.
+            let expected = if run.variant == Variant::Solo { vec![robot.robot] } else { vec![1, 2] };
+            assert_eq!(robot.connected, expected, "{:?} robot {}", run.variant, robot.robot);
+        }
+    }
+    assert!(result.runs.iter().any(|r| r.variant == Variant::Truth && r.report.truth_loop_closures));
+    assert!(result.runs.iter().any(|r| r.variant == Variant::Solo && r.report.solo));
+
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(md.contains("## lab-rocks (moon site, seed 11, 15 s; after Tab. 8.8 #1"), "{md}");
+    for column in ["team robot 1", "team robot 2", "solo robot 1", "solo robot 2", "truth robot 1", "truth robot 2"] {
+        assert!(md.contains(column), "no column {column}: {md}");
+    }
+    for row in ["| mean 3D error [m] |", "| map matches inter-robot |", "| robot detections made |"] {
+        let line = md.lines().find(|l| l.starts_with(row)).unwrap_or_else(|| panic!("no row {row}: {md}"));
+        assert_eq!(line.matches('|').count(), 8, "{line}");
+    }
+    for variant in ["| team | 2 |", "| solo | 2 |", "| truth | 2 |"] {
+        assert!(md.contains(variant), "summary lacks {variant}: {md}");
+    }
+    std::fs::remove_dir_all(&out).ok();
+}
