@@ -303,14 +303,15 @@ impl Variant {
         }
     }
 
-    fn topology(&self) -> Topology {
+    pub fn topology(&self) -> Topology {
         match self {
             Variant::Multi(t) | Variant::Single(t) => *t,
             Variant::FilterOnly => Topology::LocalReference,
         }
     }
 
-    fn keeps(&self, own: RobotId, m: &Measurement) -> bool {
+    /// Whether this variant's graph of robot `own` takes `m`.
+    pub fn keeps(&self, own: RobotId, m: &Measurement) -> bool {
         let own_only = match m {
             Measurement::FilterPose(p) => p.robot == own,
             Measurement::SubmapSwitch(s) => s.robot == own,
@@ -343,6 +344,27 @@ pub struct RobotResult {
     pub dropped_out_of_order: usize,
 }
 
+/// Robot `own`'s graph of `variant` (with `config` otherwise) after the measurements of
+/// `received` that the variant keeps: those with the same arrival key go into one update.
+pub fn replay(
+    own: RobotId,
+    config: TeamGraphConfig,
+    received: &[(u64, Measurement)],
+    variant: Variant,
+) -> Result<TeamGraph, slam::SlamError> {
+    let mut graph = TeamGraph::new(own, TeamGraphConfig { topology: variant.topology(), ..config });
+    let mut batch = None;
+    for (arrival, m) in received.iter().filter(|(_, m)| variant.keeps(own, m)) {
+        if batch.is_some_and(|b| b != *arrival) {
+            graph.update()?;
+        }
+        batch = Some(*arrival);
+        graph.insert(m);
+    }
+    graph.update()?;
+    Ok(graph)
+}
+
 /// Replays `log.received[robot]` into a graph of `variant` and scores its online trajectory.
 pub fn evaluate(
     world: &Arc<World>,
@@ -352,16 +374,7 @@ pub fn evaluate(
     truth_config: TruthConstraintConfig,
 ) -> Result<Option<RobotResult>, slam::SlamError> {
     let own = robot_id(record.robot);
-    let mut graph = TeamGraph::new(own, TeamGraphConfig { topology: variant.topology(), ..TeamGraphConfig::default() });
-    let mut batch_ns = None;
-    for (arrival, m) in received.iter().filter(|(_, m)| variant.keeps(own, m)) {
-        if batch_ns.is_some_and(|t| t != *arrival) {
-            graph.update()?;
-        }
-        batch_ns = Some(*arrival);
-        graph.insert(m);
-    }
-    graph.update()?;
+    let graph = replay(own, TeamGraphConfig::default(), received, variant)?;
     let source = TruthConstraints::new(Arc::clone(world), truth_config);
     let Some(t_world_own) = source.true_origin(record.robot, record.initialized_ns) else {
         return Ok(None);

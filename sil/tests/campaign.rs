@@ -31,6 +31,33 @@ fn a_campaign_runs_every_variant_and_reports_them_side_by_side() {
             assert_eq!(robot.connected, expected, "{:?} robot {}", run.variant, robot.robot);
         }
     }
+    // The team run's graph inputs replayed into the thesis's variants: the multi-robot local-
+    // reference replay rebuilds the live graph exactly; alone or as a bare filter chain, the
+    // robot's graph loses the other robot and its detections.
+    let team = result.runs.iter().find(|r| r.variant == Variant::Team).unwrap();
+    for robot in &team.report.robots {
+        let names: Vec<&str> = robot.replays.iter().map(|v| v.variant).collect();
+        assert_eq!(
+            names,
+            ["multi, local reference", "multi, sequential odometry", "single, local reference", "filter only"]
+        );
+        let live = &robot.replays[0];
+        assert_eq!((live.nodes, live.factors), (robot.graph_nodes, robot.graph_factors), "robot {}", robot.robot);
+        for v in &robot.replays {
+            assert!(v.score.is_some(), "robot {} {}: {:?}", robot.robot, v.variant, v.error);
+        }
+        let filter = &robot.replays[3];
+        assert!(
+            filter.factors < live.factors,
+            "robot {}: filter {} vs live {}",
+            robot.robot,
+            filter.factors,
+            live.factors
+        );
+    }
+    for other in result.runs.iter().filter(|r| r.variant != Variant::Team) {
+        assert!(other.report.robots.iter().all(|r| r.replays.is_empty()));
+    }
     assert!(result.runs.iter().any(|r| r.variant == Variant::Truth && r.report.truth_loop_closures));
     assert!(result.runs.iter().any(|r| r.variant == Variant::Solo && r.report.solo));
 
@@ -43,7 +70,8 @@ fn a_campaign_runs_every_variant_and_reports_them_side_by_side() {
         let line = md.lines().find(|l| l.starts_with(row)).unwrap_or_else(|| panic!("no row {row}: {md}"));
         assert_eq!(line.matches('|').count(), 8, "{line}");
     }
-    for variant in ["| team | 2 |", "| solo | 2 |", "| truth | 2 |"] {
+    assert!(md.contains("The team run's graph inputs replayed"), "{md}");
+    for variant in ["| team | 2 |", "| solo | 2 |", "| truth | 2 |", "| replayed: filter only | 2 |"] {
         assert!(md.contains(variant), "summary lacks {variant}: {md}");
     }
     std::fs::remove_dir_all(&out).ok();

@@ -29,6 +29,7 @@ use sim::driver::SimSensorSource;
 use sim::world::World;
 
 use super::progress::{Progress, RobotProgress, path_length_m};
+use super::replay::replay_variants;
 use super::report::{LinkTraffic, MissionReport, ProcessReport, RobotReport, SubmapTraffic};
 use super::screening::ClosureScreening;
 use super::world::{
@@ -250,6 +251,11 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
     }
     let camera_period_ns = (1e9 / world.scenario.camera_rate_hz).round() as u64;
     let end_ns = (options.duration_s * 1e9) as u64;
+    if options.replay_variants {
+        for r in &mut robots {
+            r.stack.mapper.log_graph_inserts();
+        }
+    }
     let mut now_ns = 0;
     let mut progress = Progress::new(options.progress, options.duration_s);
     while now_ns <= end_ns {
@@ -350,8 +356,15 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         let inter_robot_error_m = summary
             .initialized_ns
             .map_or_else(Default::default, |init| inter_robot_errors(&world, robot, init, placed));
+        let replays = if options.replay_variants {
+            let graph = stack.mapper.graph();
+            replay_variants(graph.own(), graph.config(), stack.mapper.graph_inserts(), truth.as_deref())
+        } else {
+            Vec::new()
+        };
         let comms = comms(stack)?.stats();
         robot_reports.push(RobotReport {
+            replays,
             robot: robot_id(robot),
             score: written.score,
             score_error: written.score_error,

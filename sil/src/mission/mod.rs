@@ -7,6 +7,7 @@ pub mod lockstep;
 pub mod matching;
 pub mod process;
 pub mod progress;
+pub mod replay;
 pub mod report;
 pub mod score;
 pub mod screening;
@@ -107,6 +108,9 @@ pub struct MissionOptions {
     /// Lockstep runner: redraw a progress line on standard error (the CLI sets it on a terminal
     /// without `--json`).
     pub progress: bool,
+    /// Lockstep runner: log every robot's graph inserts and replay them into the thesis's
+    /// back-end variants after the mission (`RobotReport::replays`).
+    pub replay_variants: bool,
 }
 
 impl Default for MissionOptions {
@@ -137,6 +141,7 @@ impl Default for MissionOptions {
             submap_max_distance_m: None,
             step_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             progress: false,
+            replay_variants: false,
         }
     }
 }

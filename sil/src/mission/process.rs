@@ -525,6 +525,7 @@ fn robot_report(
             queued: u64_at(m, "queued") as usize,
             ..Default::default()
         }),
+        replays: Vec::new(),
     };
 
     let restarts_of = |name: &str| {

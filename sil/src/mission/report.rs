@@ -38,6 +38,9 @@ pub struct RobotReport {
     /// What this robot's own submaps cost on its links (`None`: not measured, the process
     /// runner's comms stats file has no per-link split).
     pub submap_traffic: Option<SubmapTraffic>,
+    /// The robot's graph inserts replayed into the thesis's back-end variants (lockstep runner
+    /// with `replay_variants`; empty otherwise).
+    pub replays: Vec<super::replay::ReplayScore>,
 }
 
 /// One robot's submap traffic: `SubmapHeader` and `SubmapChunk` packets it put on its links,
@@ -248,6 +251,16 @@ impl MissionReport {
                     "inter_robot_error_m": r.inter_robot_error_m,
                     "matching": r.matching.as_ref().map(super::matching::MatchingReport::to_json),
                     "submap_traffic": r.submap_traffic.map(|t| t.to_json(self.duration_s)),
+                    "replays": r.replays.iter().map(|v| json!({
+                        "variant": v.variant,
+                        "mean_error_m": v.score.as_ref().map(|s| s.mean_error_m),
+                        "max_error_m": v.score.as_ref().map(|s| s.max_error_m),
+                        "mean_yaw_error_deg": v.score.as_ref().map(|s| s.mean_yaw_error_deg),
+                        "distance_m": v.score.as_ref().map(|s| s.distance_m),
+                        "error": v.error,
+                        "nodes": v.nodes,
+                        "factors": v.factors,
+                    })).collect::<Vec<_>>(),
                 })
             })
             .collect();

@@ -230,6 +230,11 @@ pub struct MapperNode {
     next_pose_ns: u64,
     own_poses: BTreeMap<u64, FilterPose>,
     online: Vec<(u64, Isometry3<f64>)>,
+    /// Every graph insert with the count of graph updates before it, when a harness asked for
+    /// them (`log_graph_inserts`; the firmware never does): the back-end's whole input, for
+    /// replaying it into other graph variants.
+    insert_log: Option<Vec<(u64, Measurement)>>,
+    graph_updates: u64,
     outgoing: VecDeque<Outgoing>,
     reassembler: wire::Reassembler,
     match_ids: BTreeMap<SubmapPair, ConstraintId>,
@@ -297,6 +302,8 @@ impl MapperNode {
             next_pose_ns: 0,
             own_poses: BTreeMap::new(),
             online: Vec::new(),
+            insert_log: None,
+            graph_updates: 0,
             outgoing: VecDeque::new(),
             reassembler: wire::Reassembler::new(config.max_partial_submaps, config.max_submap_payload_bytes),
             match_ids: BTreeMap::new(),
@@ -397,6 +404,18 @@ impl MapperNode {
     /// the graph gave it then (thesis ch. 8).
     pub fn online_trajectory(&self) -> &[(u64, Isometry3<f64>)] {
         &self.online
+    }
+
+    /// From now on, keep every graph insert (see [`MapperNode::graph_inserts`]). For harnesses:
+    /// the log grows with the mission.
+    pub fn log_graph_inserts(&mut self) {
+        self.insert_log.get_or_insert_with(Vec::new);
+    }
+
+    /// The graph inserts since [`MapperNode::log_graph_inserts`], each with the number of graph
+    /// updates before it: inserts with the same number went into the same update.
+    pub fn graph_inserts(&self) -> &[(u64, Measurement)] {
+        self.insert_log.as_deref().unwrap_or(&[])
     }
 
     pub fn team_estimate(&self) -> TeamEstimate {
@@ -540,6 +559,9 @@ impl MapperNode {
     }
 
     fn insert(&mut self, m: &Measurement) -> InsertOutcome {
+        if let Some(log) = self.insert_log.as_mut() {
+            log.push((self.graph_updates, *m));
+        }
         let outcome = self.graph.insert(m);
         match outcome {
             InsertOutcome::Added | InsertOutcome::Pending => self.dirty = true,
@@ -552,6 +574,7 @@ impl MapperNode {
     fn update_graph(&mut self) {
         if self.dirty {
             self.dirty = false;
+            self.graph_updates += 1;
             if self.graph.update().is_err() {
                 self.counters.graph_errors += 1;
             }
