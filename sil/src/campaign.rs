@@ -202,6 +202,7 @@ pub fn report_markdown(campaign: &Campaign, options: &CampaignOptions) -> String
         experiment_table(&mut md, &runs);
         if let Some(team) = runs.iter().find(|r| r.variant == Variant::Team) {
             replay_table(&mut md, team);
+            runtime_table(&mut md, team);
         }
     }
     summary(&mut md, campaign);
@@ -223,6 +224,10 @@ fn experiment_table(md: &mut String, runs: &[&CampaignRun]) {
         robot.score.as_ref().map_or_else(|| "–".to_owned(), f)
     };
     type Cell<'a> = Box<dyn Fn(&RobotReport) -> String + 'a>;
+    let duration_s = runs.first().map_or(1.0, |r| r.report.duration_s.max(f64::MIN_POSITIVE));
+    let matcher = |r: &RobotReport, f: &dyn Fn(&crate::mission::matching::MatchingReport) -> String| {
+        r.matching.as_ref().map_or_else(|| "–".to_owned(), f)
+    };
     let rows: Vec<(&str, Cell<'_>)> = vec![
         ("submaps", Box::new(|r: &RobotReport| r.submaps_finished.to_string())),
         ("map matches intra-robot", Box::new(|r: &RobotReport| matches(r).0.to_string())),
@@ -237,6 +242,29 @@ fn experiment_table(md: &mut String, runs: &[&CampaignRun]) {
         (
             "mean error / distance [%]",
             Box::new(|r: &RobotReport| error_percent(r).map_or_else(|| "–".to_owned(), |p| format!("{p:.3}"))),
+        ),
+        (
+            "sent, all links [KB/s]",
+            Box::new(move |r: &RobotReport| {
+                format!("{:.2}", r.bytes_sent_by_class.values().sum::<u64>() as f64 / duration_s / 1e3)
+            }),
+        ),
+        (
+            "of it submaps [KB/s]",
+            Box::new(move |r: &RobotReport| {
+                r.submap_traffic
+                    .map_or_else(|| "–".to_owned(), |t| format!("{:.2}", t.wire_bytes_per_s(duration_s) / 1e3))
+            }),
+        ),
+        (
+            "matcher attempts / accepted",
+            Box::new(move |r: &RobotReport| matcher(r, &|m| format!("{} / {}", m.attempts, m.accepted))),
+        ),
+        (
+            "matcher time per attempt [s]",
+            Box::new(move |r: &RobotReport| {
+                matcher(r, &|m| if m.attempts > 0 { format!("{:.2}", m.mean_stage_s[4]) } else { "–".to_owned() })
+            }),
         ),
     ];
     for (name, cell) in &rows {
@@ -282,6 +310,40 @@ fn replay_table(md: &mut String, team: &CampaignRun) {
             }
         }
         md.push('\n');
+    }
+}
+
+/// Per robot and process of the team run: time in the node's handlers per second of sensor time
+/// (lockstep: wall time of the handlers, so contention from other jobs inflates it).
+fn runtime_table(md: &mut String, team: &CampaignRun) {
+    let report = &team.report;
+    let mut names: Vec<&str> = Vec::new();
+    for p in &report.processes {
+        if !names.contains(&p.process.as_str()) {
+            names.push(&p.process);
+        }
+    }
+    if names.is_empty() {
+        return;
+    }
+    md.push_str("\nTeam run, time in each process's handlers per second of sensor time:\n\n| robot |");
+    for name in &names {
+        let _ = write!(md, " {name} |");
+    }
+    md.push_str(" total |\n|---|");
+    md.push_str(&"---:|".repeat(names.len() + 1));
+    md.push('\n');
+    let duration_s = report.duration_s.max(f64::MIN_POSITIVE);
+    for robot in &report.robots {
+        let _ = write!(md, "| {} |", robot.robot);
+        let mut total = 0.0;
+        for name in &names {
+            let cpu_s: f64 =
+                report.processes.iter().filter(|p| p.robot == robot.robot && p.process == *name).map(|p| p.cpu_s).sum();
+            total += cpu_s;
+            let _ = write!(md, " {:.3} |", cpu_s / duration_s);
+        }
+        let _ = writeln!(md, " {:.3} |", total / duration_s);
     }
 }
 

@@ -71,6 +71,17 @@ fn a_campaign_runs_every_variant_and_reports_them_side_by_side() {
         assert_eq!(line.matches('|').count(), 8, "{line}");
     }
     assert!(md.contains("The team run's graph inputs replayed"), "{md}");
+    for row in ["| sent, all links [KB/s] |", "| of it submaps [KB/s] |", "| matcher attempts / accepted |"] {
+        let line = md.lines().find(|l| l.starts_with(row)).unwrap_or_else(|| panic!("no row {row}: {md}"));
+        assert_eq!(line.matches('|').count(), 8, "{line}");
+    }
+    // The team's robots talk (markers, poses, telemetry): some bytes per second on their links;
+    // the solo robots have no team link but still the ground's.
+    let sent = md.lines().find(|l| l.starts_with("| sent, all links [KB/s] |")).unwrap();
+    let rates: Vec<f64> = sent.split('|').filter_map(|c| c.trim().parse().ok()).collect();
+    assert!(rates.len() == 6 && rates.iter().all(|&r| r > 0.0), "{sent}");
+    let runtime = md.lines().skip_while(|l| !l.starts_with("Team run, time in each process")).nth(2).unwrap();
+    assert!(runtime.contains("vision") && runtime.contains("mapper"), "{runtime}");
     for variant in ["| team | 2 |", "| solo | 2 |", "| truth | 2 |", "| replayed: filter only | 2 |"] {
         assert!(md.contains(variant), "summary lacks {variant}: {md}");
     }
