@@ -35,14 +35,11 @@ fn list<T>(text: &str, name: &str, parse: impl Fn(&str) -> Option<T>, known: &st
 }
 
 fn parse_args(args: Vec<OsString>) -> Result<Option<CampaignOptions>, String> {
+    use super::text;
     use lexopt::prelude::*;
     let mut parser = lexopt::Parser::from_args(args);
     let mut options = CampaignOptions::default();
     let mut out = None;
-    let text = |parser: &mut lexopt::Parser, name: &str| -> Result<String, String> {
-        let value = parser.value().map_err(|e| e.to_string())?;
-        value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
-    };
     while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
         match arg {
             Long("out") => out = Some(parser.value().map_err(|e| e.to_string())?.into()),
@@ -58,27 +55,13 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<CampaignOptions>, String> {
                 options.variants = list(&v, "--variants", Variant::parse, "team, solo, truth")?;
             }
             Long("downscale") => {
-                let v = text(&mut parser, "--downscale")?;
-                options.downscale = match v.as_str() {
-                    "1" => 1,
-                    "2" => 2,
-                    "4" => 4,
-                    _ => return Err(format!("--downscale: expected 1, 2 or 4, got {v:?}")),
-                };
+                options.downscale = super::downscale(&text(&mut parser, "--downscale")?)?;
             }
             Long("duration") => {
-                let v = text(&mut parser, "--duration")?;
-                options.duration_s = Some(match v.parse::<f64>() {
-                    Ok(s) if s.is_finite() && s >= 5.0 => s,
-                    _ => return Err(format!("--duration: expected at least 5 seconds, got {v:?}")),
-                });
+                options.duration_s = Some(super::duration_s(&text(&mut parser, "--duration")?)?);
             }
             Long("threads") => {
-                let v = text(&mut parser, "--threads")?;
-                options.step_threads = match v.parse::<usize>() {
-                    Ok(n) if (1..=64).contains(&n) => n,
-                    _ => return Err(format!("--threads: expected 1 to 64, got {v:?}")),
-                };
+                options.step_threads = super::step_threads(&text(&mut parser, "--threads")?)?;
             }
             Long("help") | Short('h') => return Ok(None),
             other => return Err(other.unexpected().to_string()),

@@ -90,6 +90,7 @@ fn parse_outage(text: &str) -> Result<(u64, u64), String> {
 }
 
 fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, String> {
+    use super::text;
     use lexopt::prelude::*;
     let mut parser = lexopt::Parser::from_args(args);
     let mut options = MissionOptions::default();
@@ -97,10 +98,6 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     let mut matching: Option<Option<MatchModeConfig>> = None;
     let mut duration_s = None;
     let mut seed = None;
-    let text = |parser: &mut lexopt::Parser, name: &str| -> Result<String, String> {
-        let value = parser.value().map_err(|e| e.to_string())?;
-        value.into_string().map_err(|v| format!("{name}: not UTF-8: {v:?}"))
-    };
     while let Some(arg) = parser.next().map_err(|e| e.to_string())? {
         match arg {
             Long("robots") => {
@@ -112,24 +109,14 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
             }
             Long("scenario") => options.scenario = text(&mut parser, "--scenario")?,
             Long("duration") => {
-                let v = text(&mut parser, "--duration")?;
-                duration_s = Some(match v.parse::<f64>() {
-                    Ok(s) if s.is_finite() && s >= 5.0 => s,
-                    _ => return Err(format!("--duration: expected at least 5 seconds, got {v:?}")),
-                });
+                duration_s = Some(super::duration_s(&text(&mut parser, "--duration")?)?);
             }
             Long("seed") => {
                 let v = text(&mut parser, "--seed")?;
                 seed = Some(v.parse().map_err(|_| format!("--seed: expected an integer, got {v:?}"))?);
             }
             Long("downscale") => {
-                let v = text(&mut parser, "--downscale")?;
-                options.downscale = match v.as_str() {
-                    "1" => 1,
-                    "2" => 2,
-                    "4" => 4,
-                    _ => return Err(format!("--downscale: expected 1, 2 or 4, got {v:?}")),
-                };
+                options.downscale = super::downscale(&text(&mut parser, "--downscale")?)?;
             }
             Long("out") => options.out = parser.value().map_err(|e| e.to_string())?.into(),
             Long("runner") => {
@@ -147,11 +134,7 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                 };
             }
             Long("threads") => {
-                let v = text(&mut parser, "--threads")?;
-                options.step_threads = match v.parse::<usize>() {
-                    Ok(n) if (1..=64).contains(&n) => n,
-                    _ => return Err(format!("--threads: expected 1 to 64, got {v:?}")),
-                };
+                options.step_threads = super::step_threads(&text(&mut parser, "--threads")?)?;
             }
             Long("truth-loop-closures") => options.truth_loop_closures = true,
             Long("compare-match-modes") => options.compare_match_modes = true,
