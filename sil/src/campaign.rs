@@ -8,8 +8,11 @@
 //! - `truth`: loop closures drawn from the simulator's ground truth instead (a test-only upper
 //!   bound, not a result).
 //!
-//! Each variant runs the whole mission again (rendering and matching included): the runs are
-//! deterministic for a seed, so the variants see the same images, but they are not shared.
+//! The thesis's back-end variants (multi-robot with its topology and with sequential odometry,
+//! single-robot, filter only) replay the team run's graph inputs, so the images are rendered and
+//! matched once for them. `solo` and `truth` run the whole mission again (the same images: the
+//! runs are deterministic for a seed); the default campaign runs `team` and `truth`, `solo` is
+//! there to check the single-robot replay against a robot that really was alone.
 //! `report.md` is rewritten after every run, so an interrupted campaign keeps what it has.
 
 use std::fmt::Write as _;
@@ -32,6 +35,8 @@ pub enum Variant {
 
 impl Variant {
     pub const ALL: [Variant; 3] = [Variant::Team, Variant::Solo, Variant::Truth];
+    /// What `sil campaign` runs unless told otherwise.
+    pub const DEFAULT: [Variant; 2] = [Variant::Team, Variant::Truth];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -87,7 +92,7 @@ impl Default for CampaignOptions {
         CampaignOptions {
             out: PathBuf::from("runs/campaign"),
             experiments: experiments::EXPERIMENTS.iter().collect(),
-            variants: Variant::ALL.to_vec(),
+            variants: Variant::DEFAULT.to_vec(),
             downscale: mission.downscale,
             duration_s: None,
             step_threads: mission.step_threads,
@@ -133,8 +138,9 @@ pub fn run(options: &CampaignOptions) -> Result<Campaign, MissionError> {
     let wall = Instant::now();
     std::fs::create_dir_all(&options.out).map_err(|e| MissionError::Io { path: options.out.clone(), source: e })?;
     let mut campaign = Campaign::default();
-    for &experiment in &options.experiments {
-        for &variant in &options.variants {
+    // Variant by variant, so that an interrupted campaign has every scenario's team run first.
+    for &variant in &options.variants {
+        for &experiment in &options.experiments {
             let report = mission::run(&mission_options(options, experiment, variant))?;
             campaign.runs.push(CampaignRun { experiment, variant, report });
             campaign.wall_s = wall.elapsed().as_secs_f64();
@@ -151,8 +157,7 @@ fn write_report(out: &Path, campaign: &Campaign, options: &CampaignOptions) -> R
 
 /// Mean 3-D error over the distance travelled (%), `None` without a scored trajectory or distance.
 fn error_percent(robot: &RobotReport) -> Option<f64> {
-    let score = robot.score.as_ref()?;
-    (score.distance_m > 0.0).then(|| 100.0 * score.mean_error_m / score.distance_m)
+    robot.score.as_ref()?.mean_error_percent()
 }
 
 /// Accepted matches of the robot's own matcher: (intra-robot, inter-robot).
@@ -296,7 +301,7 @@ fn replay_table(md: &mut String, team: &CampaignRun) {
         for r in robots {
             match r.replays.get(k) {
                 Some(ReplayScore { score: Some(s), nodes, factors, .. }) => {
-                    let percent = if s.distance_m > 0.0 { 100.0 * s.mean_error_m / s.distance_m } else { f64::NAN };
+                    let percent = s.mean_error_percent().unwrap_or(f64::NAN);
                     let _ = write!(
                         md,
                         " {:.3} / {:.3} | {percent:.3} | {nodes} / {factors} |",
@@ -371,9 +376,7 @@ fn summary(md: &mut String, campaign: &Campaign) {
             .filter(|r| r.variant == Variant::Team)
             .flat_map(|r| r.report.robots.iter())
             .filter_map(|robot| robot.replays.iter().find(|v| v.variant == variant.name()))
-            .filter_map(|v| {
-                v.score.as_ref().filter(|s| s.distance_m > 0.0).map(|s| 100.0 * s.mean_error_m / s.distance_m)
-            })
+            .filter_map(|v| v.score.as_ref()?.mean_error_percent())
             .collect();
         if percents.is_empty() {
             continue;

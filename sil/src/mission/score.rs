@@ -24,6 +24,14 @@ pub struct TrajectoryScore {
     pub poses: usize,
 }
 
+impl TrajectoryScore {
+    /// Mean 3-D error over the distance travelled (%, the thesis's headline figure), `None` for
+    /// a robot that did not move.
+    pub fn mean_error_percent(&self) -> Option<f64> {
+        (self.distance_m > 0.0).then(|| 100.0 * self.mean_error_m / self.distance_m)
+    }
+}
+
 /// Why a trajectory could not be scored.
 #[derive(Debug, thiserror::Error)]
 pub enum ScoreError {
