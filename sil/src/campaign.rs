@@ -21,6 +21,8 @@ use std::time::Instant;
 
 use sim::scenario::experiments::{self, Experiment};
 
+pub mod pictures;
+
 use crate::mission::replay::ReplayScore;
 use crate::mission::report::{MissionReport, RobotReport};
 use crate::mission::{self, MissionError, MissionOptions};
@@ -124,7 +126,7 @@ pub fn mission_options(options: &CampaignOptions, experiment: &Experiment, varia
         duration_s: options.duration_s.map_or(experiment.duration_s, |d| d.min(experiment.duration_s)),
         seed: experiment.seed,
         downscale: options.downscale,
-        out: options.out.join(experiment.name).join(variant.name()),
+        out: run_dir(&options.out, experiment, variant),
         step_threads: options.step_threads,
         progress: options.progress,
         ..MissionOptions::default()
@@ -144,10 +146,54 @@ pub fn run(options: &CampaignOptions) -> Result<Campaign, MissionError> {
             let report = mission::run(&mission_options(options, experiment, variant))?;
             campaign.runs.push(CampaignRun { experiment, variant, report });
             campaign.wall_s = wall.elapsed().as_secs_f64();
+            write_pictures(&options.out, &campaign, experiment)?;
             write_report(&options.out, &campaign, options)?;
         }
     }
     Ok(campaign)
+}
+
+/// The run directory of `experiment` in `variant` (see [`mission_options`]).
+fn run_dir(out: &Path, experiment: &Experiment, variant: Variant) -> PathBuf {
+    out.join(experiment.name).join(variant.name())
+}
+
+fn write_svg(path: PathBuf, svg: String) -> Result<(), MissionError> {
+    std::fs::write(&path, svg).map_err(|e| MissionError::Io { path, source: e })
+}
+
+/// `NAME/VARIANT/trajectories.svg` of `experiment`'s latest run and `NAME/error.svg` over all of
+/// its runs so far, the team run's loop closures marked.
+fn write_pictures(out: &Path, campaign: &Campaign, experiment: &Experiment) -> Result<(), MissionError> {
+    let runs: Vec<&CampaignRun> = campaign.runs.iter().filter(|r| r.experiment.name == experiment.name).collect();
+    let mut tracks = Vec::new();
+    for run in &runs {
+        let dir = run_dir(out, experiment, run.variant);
+        let mut robots = Vec::new();
+        for (i, robot) in run.report.robots.iter().enumerate() {
+            // A robot that never initialised has no trajectory to draw.
+            if let Ok(track) = pictures::RobotTrack::read(robot.robot, &dir.join(format!("robot{i}"))) {
+                robots.push(track);
+            }
+        }
+        tracks.push((run.variant, robots));
+    }
+    if let Some((variant, latest)) = tracks.last() {
+        write_svg(
+            run_dir(out, experiment, *variant).join("trajectories.svg"),
+            pictures::trajectories(latest, variant.name()),
+        )?;
+    }
+    let events: Vec<Vec<_>> = runs
+        .iter()
+        .find(|r| r.variant == Variant::Team)
+        .map(|team| team.report.robots.iter().map(|r| r.closure_events.clone()).collect())
+        .unwrap_or_default();
+    // The team run first: it is drawn solid, in the robot's colour.
+    tracks.sort_by_key(|(v, _)| *v != Variant::Team);
+    let variants: Vec<(&str, &[pictures::RobotTrack])> =
+        tracks.iter().filter(|(_, t)| !t.is_empty()).map(|(v, t)| (v.name(), t.as_slice())).collect();
+    write_svg(out.join(experiment.name).join("error.svg"), pictures::errors(&variants, &events))
 }
 
 fn write_report(out: &Path, campaign: &Campaign, options: &CampaignOptions) -> Result<(), MissionError> {
@@ -205,6 +251,11 @@ pub fn report_markdown(campaign: &Campaign, options: &CampaignOptions) -> String
             experiment.name, experiment.site, experiment.seed, runs[0].report.duration_s, experiment.after
         );
         experiment_table(&mut md, &runs);
+        let _ = writeln!(md, "\n![error over time]({}/error.svg)\n", experiment.name);
+        for run in &runs {
+            let _ =
+                writeln!(md, "![{0} trajectories]({1}/{0}/trajectories.svg)\n", run.variant.name(), experiment.name);
+        }
         if let Some(team) = runs.iter().find(|r| r.variant == Variant::Team) {
             replay_table(&mut md, team);
             runtime_table(&mut md, team);

@@ -1,5 +1,5 @@
 //! `sil campaign` on the beginning of one experiment in all three variants: each variant's
-//! mission runs with its own back-end and the report puts them side by side.
+//! mission runs with its own back-end and the report puts them side by side, with pictures.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -84,6 +84,25 @@ fn a_campaign_runs_every_variant_and_reports_them_side_by_side() {
     assert!(runtime.contains("vision") && runtime.contains("mapper"), "{runtime}");
     for variant in ["| team | 2 |", "| solo | 2 |", "| truth | 2 |", "| replayed: filter only | 2 |"] {
         assert!(md.contains(variant), "summary lacks {variant}: {md}");
+    }
+    // Pictures: each run's trajectories, the experiment's error over time with the team's loop
+    // closures (the robots detect each other at the start) marked, all embedded in the report.
+    for robot in &team.report.robots {
+        assert!(
+            robot.closure_events.iter().any(|e| e.kind == sil::mission::events::ClosureKind::Detection),
+            "robot {}: {:?}",
+            robot.robot,
+            robot.closure_events
+        );
+    }
+    let error = std::fs::read_to_string(out.join("lab-rocks/error.svg")).unwrap();
+    assert_eq!(error.matches("<path").count(), 6, "three variants per robot");
+    assert!(error.contains(">detection<"), "no detection in the legend");
+    assert!(md.contains("![error over time](lab-rocks/error.svg)"), "{md}");
+    for variant in ["team", "solo", "truth"] {
+        let svg = std::fs::read_to_string(out.join("lab-rocks").join(variant).join("trajectories.svg")).unwrap();
+        assert_eq!(svg.matches("<path").count(), 4, "{variant}: truth and estimate per robot");
+        assert!(md.contains(&format!("![{variant} trajectories](lab-rocks/{variant}/trajectories.svg)")), "{md}");
     }
     std::fs::remove_dir_all(&out).ok();
 }

@@ -28,6 +28,7 @@ use protocol::{NodeId, RobotId};
 use sim::driver::SimSensorSource;
 use sim::world::World;
 
+use super::events::closure_events;
 use super::progress::{Progress, RobotProgress, path_length_m};
 use super::replay::replay_variants;
 use super::report::{LinkTraffic, MissionReport, ProcessReport, RobotReport, SubmapTraffic};
@@ -356,15 +357,17 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         let inter_robot_error_m = summary
             .initialized_ns
             .map_or_else(Default::default, |init| inter_robot_errors(&world, robot, init, placed));
-        let replays = if options.replay_variants {
+        let (replays, closure_events) = if options.replay_variants {
             let graph = stack.mapper.graph();
-            replay_variants(graph.own(), graph.config(), stack.mapper.graph_inserts(), truth.as_deref())
+            let inserts = stack.mapper.graph_inserts();
+            (replay_variants(graph.own(), graph.config(), inserts, truth.as_deref()), closure_events(inserts))
         } else {
-            Vec::new()
+            (Vec::new(), Vec::new())
         };
         let comms = comms(stack)?.stats();
         robot_reports.push(RobotReport {
             replays,
+            closure_events,
             robot: robot_id(robot),
             score: written.score,
             score_error: written.score_error,

@@ -3,6 +3,7 @@
 //! and the outputs: per robot the online trajectory and the ground truth (TUM), the pose graph
 //! (g2o), the map (PLY, OctoMap `.bt`), and `report.json` + `report.md`.
 
+pub mod events;
 pub mod lockstep;
 pub mod matching;
 pub mod process;

@@ -526,6 +526,7 @@ fn robot_report(
             ..Default::default()
         }),
         replays: Vec::new(),
+        closure_events: Vec::new(),
     };
 
     let restarts_of = |name: &str| {

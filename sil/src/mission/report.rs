@@ -41,6 +41,8 @@ pub struct RobotReport {
     /// The robot's graph inserts replayed into the thesis's back-end variants (lockstep runner
     /// with `replay_variants`; empty otherwise).
     pub replays: Vec<super::replay::ReplayScore>,
+    /// Loop closures as the graph took them in (lockstep runs that log graph inserts).
+    pub closure_events: Vec<super::events::ClosureEvent>,
 }
 
 /// One robot's submap traffic: `SubmapHeader` and `SubmapChunk` packets it put on its links,
@@ -251,6 +253,10 @@ impl MissionReport {
                     "inter_robot_error_m": r.inter_robot_error_m,
                     "matching": r.matching.as_ref().map(super::matching::MatchingReport::to_json),
                     "submap_traffic": r.submap_traffic.map(|t| t.to_json(self.duration_s)),
+                    "closure_events": r.closure_events.iter().map(|e| json!({
+                        "stamp_s": e.stamp_ns as f64 * 1e-9,
+                        "kind": e.kind.name(),
+                    })).collect::<Vec<_>>(),
                     "replays": r.replays.iter().map(|v| json!({
                         "variant": v.variant,
                         "mean_error_m": v.score.as_ref().map(|s| s.mean_error_m),
