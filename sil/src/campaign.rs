@@ -259,6 +259,7 @@ pub fn report_markdown(campaign: &Campaign, options: &CampaignOptions) -> String
         if let Some(team) = runs.iter().find(|r| r.variant == Variant::Team) {
             replay_table(&mut md, team);
             runtime_table(&mut md, team);
+            step_table(&mut md, team);
         }
     }
     summary(&mut md, campaign);
@@ -400,6 +401,63 @@ fn runtime_table(md: &mut String, team: &CampaignRun) {
             let _ = write!(md, " {:.3} |", cpu_s / duration_s);
         }
         let _ = writeln!(md, " {:.3} |", total / duration_s);
+    }
+}
+
+/// The team run's per-step wall times in the layout of the thesis's runtime table (§8.4, LRU2 in
+/// experiment #2 on a 4-core Xeon E5-1620; here one core per robot at most).
+fn step_table(md: &mut String, team: &CampaignRun) {
+    let robots: Vec<&RobotReport> = team.report.robots.iter().filter(|r| r.step_times.is_some()).collect();
+    if robots.is_empty() {
+        return;
+    }
+    md.push_str("\nTeam run, wall time per step, mean / max [ms] (thesis §8.4 beside):\n\n| step | thesis |");
+    for r in &robots {
+        let _ = write!(md, " robot {} |", r.robot);
+    }
+    md.push_str("\n|---|---:|");
+    md.push_str(&"---:|".repeat(robots.len()));
+    md.push('\n');
+    type Step = fn(&onboard::nodes::mapper::MapperStepTimes) -> onboard::nodes::mapper::StepTime;
+    let steps: [(&str, &str, Step); 4] = [
+        ("graph update (iSAM2)", "1.7 / 162", |t| t.graph_update),
+        ("submap integration of one depth image", "10 / 40", |t| t.integration),
+        ("matcher on the mapper thread (prepare, rank with marginals, take in)", "106 / 341 (marginals)", |t| {
+            t.matcher_poll
+        }),
+        ("global map composition", "260 / 3270", |t| t.composition),
+    ];
+    for (name, thesis, step) in steps {
+        let _ = write!(md, "| {name} | {thesis} |");
+        for r in &robots {
+            match r.step_times.as_ref().map(step).filter(|s| s.count > 0) {
+                Some(s) => {
+                    let _ =
+                        write!(md, " {:.2} / {:.2} ({}×) |", s.mean_s().unwrap_or(0.0) * 1e3, s.max_s * 1e3, s.count);
+                }
+                None => md.push_str(" – |"),
+            }
+        }
+        md.push('\n');
+    }
+    let stages = [
+        ("matcher: keypoints and descriptors, per attempt", "390 / 670 (per map)"),
+        ("matcher: descriptor correspondences", "3070 / 8710"),
+        ("matcher: Hough voting and RANSAC", "20 / 50"),
+        ("matcher: ICP", "2380 / 4810"),
+        ("matcher: whole attempt", "–"),
+    ];
+    for (k, (name, thesis)) in stages.iter().enumerate() {
+        let _ = write!(md, "| {name} (mean over attempts) | {thesis} |");
+        for r in &robots {
+            match r.matching.as_ref().filter(|m| m.attempts > 0) {
+                Some(m) => {
+                    let _ = write!(md, " {:.1} ({}×) |", m.mean_stage_s[k] * 1e3, m.attempts);
+                }
+                None => md.push_str(" – |"),
+            }
+        }
+        md.push('\n');
     }
 }
 

@@ -85,6 +85,11 @@ fn a_campaign_runs_every_variant_and_reports_them_side_by_side() {
     for variant in ["| team | 2 |", "| solo | 2 |", "| truth | 2 |", "| replayed: filter only | 2 |"] {
         assert!(md.contains(variant), "summary lacks {variant}: {md}");
     }
+    // The thesis's runtime table: every robot updated its graph and integrated its images.
+    for row in ["| graph update (iSAM2) | 1.7 / 162 |", "| submap integration of one depth image | 10 / 40 |"] {
+        let line = md.lines().find(|l| l.starts_with(row)).unwrap_or_else(|| panic!("no row {row}: {md}"));
+        assert_eq!(line.matches("×)").count(), 2, "{line}");
+    }
     // Pictures: each run's trajectories, the experiment's error over time with the team's loop
     // closures (the robots detect each other at the start) marked, all embedded in the report.
     for robot in &team.report.robots {

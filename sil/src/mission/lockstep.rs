@@ -368,6 +368,7 @@ pub fn run(options: &MissionOptions) -> Result<MissionReport, MissionError> {
         robot_reports.push(RobotReport {
             replays,
             closure_events,
+            step_times: Some(*stack.mapper.step_times()),
             robot: robot_id(robot),
             score: written.score,
             score_error: written.score_error,

@@ -527,6 +527,7 @@ fn robot_report(
         }),
         replays: Vec::new(),
         closure_events: Vec::new(),
+        step_times: None,
     };
 
     let restarts_of = |name: &str| {

@@ -43,6 +43,8 @@ pub struct RobotReport {
     pub replays: Vec<super::replay::ReplayScore>,
     /// Loop closures as the graph took them in (lockstep runs that log graph inserts).
     pub closure_events: Vec<super::events::ClosureEvent>,
+    /// The mapper's per-step times (lockstep runs; the process runner's mapper keeps its own).
+    pub step_times: Option<onboard::nodes::mapper::MapperStepTimes>,
 }
 
 /// One robot's submap traffic: `SubmapHeader` and `SubmapChunk` packets it put on its links,
@@ -253,6 +255,19 @@ impl MissionReport {
                     "inter_robot_error_m": r.inter_robot_error_m,
                     "matching": r.matching.as_ref().map(super::matching::MatchingReport::to_json),
                     "submap_traffic": r.submap_traffic.map(|t| t.to_json(self.duration_s)),
+                    "step_times_ms": r.step_times.map(|t| {
+                        let ms = |s: &onboard::nodes::mapper::StepTime| json!({
+                            "count": s.count,
+                            "mean": s.mean_s().map(|v| v * 1e3),
+                            "max": s.max_s * 1e3,
+                        });
+                        json!({
+                            "graph_update": ms(&t.graph_update),
+                            "integration": ms(&t.integration),
+                            "matcher_poll": ms(&t.matcher_poll),
+                            "composition": ms(&t.composition),
+                        })
+                    }),
                     "closure_events": r.closure_events.iter().map(|e| json!({
                         "stamp_s": e.stamp_ns as f64 * 1e-9,
                         "kind": e.kind.name(),

@@ -26,6 +26,7 @@ use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::time::Instant;
 
 use hal::sensor::StereoCalibration;
 use mapper::Submap;
@@ -137,6 +138,43 @@ pub enum MapperError {
 }
 
 /// What the mapper counted (since this process started; restored state is counted separately).
+/// Wall time spent in one of the mapper's steps: how often, in total, at most (the thesis's
+/// runtime table, Tab. 8.11).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StepTime {
+    pub count: u64,
+    pub total_s: f64,
+    pub max_s: f64,
+}
+
+impl StepTime {
+    fn add(&mut self, since: Instant) {
+        let s = since.elapsed().as_secs_f64();
+        self.count += 1;
+        self.total_s += s;
+        self.max_s = self.max_s.max(s);
+    }
+
+    pub fn mean_s(&self) -> Option<f64> {
+        (self.count > 0).then(|| self.total_s / self.count as f64)
+    }
+}
+
+/// The mapper's timed steps. The matcher's own stages run on its background thread and are
+/// timed per attempt in its reports.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct MapperStepTimes {
+    /// Graph optimization after new measurements (iSAM2 update).
+    pub graph_update: StepTime,
+    /// One depth image into the current submap.
+    pub integration: StepTime,
+    /// The matcher's share of the mapper's thread: new submaps prepared, pairs ranked with the
+    /// graph's marginals, finished attempts taken in.
+    pub matcher_poll: StepTime,
+    /// The global map composed from the placed submaps (at the outputs).
+    pub composition: StepTime,
+}
+
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct MapperCounters {
     /// Protocol bytes and messages handed to comms, by message type name.
@@ -250,6 +288,7 @@ pub struct MapperNode {
     counters: MapperCounters,
     /// The submap matcher (`config.matching`).
     matcher: Option<MatchScheduler>,
+    step_times: MapperStepTimes,
 }
 
 /// The capture of the image waiting in the mapper's depth buffers.
@@ -316,6 +355,7 @@ impl MapperNode {
             parked: None,
             counters: MapperCounters::default(),
             matcher: config.matching.clone().map(|c| MatchScheduler::new(own, c)),
+            step_times: MapperStepTimes::default(),
             config,
         };
         if let Some(dir) = node.config.state_dir.clone() {
@@ -445,6 +485,11 @@ impl MapperNode {
         &self.global
     }
 
+    /// How long the mapper's steps took so far.
+    pub fn step_times(&self) -> &MapperStepTimes {
+        &self.step_times
+    }
+
     pub fn counters(&self) -> &MapperCounters {
         &self.counters
     }
@@ -518,7 +563,9 @@ impl MapperNode {
             t_submap_body: Isometry3::identity(),
             covariance: Matrix6::zeros(),
         });
+        let start = Instant::now();
         let composition = self.global.compose(t_global_current.as_ref().map(|t| (self.submapper.current(), t)));
+        self.step_times.composition.add(start);
 
         let map_ply = dir.join("map.ply");
         let mut file = BufWriter::new(File::create(&map_ply).map_err(output_error(&map_ply))?);
@@ -575,9 +622,11 @@ impl MapperNode {
         if self.dirty {
             self.dirty = false;
             self.graph_updates += 1;
+            let start = Instant::now();
             if self.graph.update().is_err() {
                 self.counters.graph_errors += 1;
             }
+            self.step_times.graph_update.add(start);
         }
         self.place_submaps();
     }
@@ -833,7 +882,9 @@ impl MapperNode {
             }
         };
         let t_local_cam = t_local_body * self.config.calibration.t_body_left(image.pan_rad, image.tilt_rad);
+        let start = Instant::now();
         self.submapper.integrate(image.stamp_ns, &self.depth, Some(&self.labels), None, &t_local_cam);
+        self.step_times.integration.add(start);
         self.counters.images_integrated += 1;
 
         let pose = FilterPose {
@@ -1081,7 +1132,9 @@ impl MapperNode {
     /// A finished submap (own or received) to the matcher, if it runs.
     fn offer_to_matcher(&mut self, submap: &Submap) {
         if let Some(matcher) = &mut self.matcher {
+            let start = Instant::now();
             matcher.add_submap(slam::SubmapId::new(submap.robot_id, submap.index), Arc::new(submap.cloud.clone()));
+            self.step_times.matcher_poll.add(start);
         }
     }
 
@@ -1090,7 +1143,10 @@ impl MapperNode {
         let Some(matcher) = &mut self.matcher else {
             return Ok(());
         };
-        for m in matcher.poll(now_ns, &mut self.graph) {
+        let start = Instant::now();
+        let found = matcher.poll(now_ns, &mut self.graph);
+        self.step_times.matcher_poll.add(start);
+        for m in found {
             self.insert_measurement(&m, out)?;
         }
         Ok(())
