@@ -53,7 +53,7 @@ pub fn replay_variants(
                 }
             };
             let size = graph.size();
-            let (score, error) = match truth.map(|truth| score::score(graph.online_log(), truth)) {
+            let (score, error) = match truth.map(|truth| score::score(&online_stream(graph.online_log()), truth)) {
                 Some(Ok(s)) => (Some(s), None),
                 Some(Err(e)) => (None, Some(e.to_string())),
                 None => (None, Some("the filter never initialized".to_owned())),
@@ -61,4 +61,33 @@ pub fn replay_variants(
             ReplayScore { variant: variant.name(), score, error, nodes: size.nodes, factors: size.factors }
         })
         .collect()
+}
+
+/// A replayed graph's online log as a stream in time. The mapper inserts its own pose at a
+/// detection's image stamp when that pose is not in the graph yet; such a pose, older than poses
+/// inserted before it, was not the robot's online estimate at its time (the live mapper's online
+/// trajectory never holds it) and is left out.
+fn online_stream(log: &[(u64, Isometry3<f64>)]) -> Vec<(u64, Isometry3<f64>)> {
+    let mut stream: Vec<(u64, Isometry3<f64>)> = Vec::with_capacity(log.len());
+    for &(stamp_ns, pose) in log {
+        if stream.last().is_none_or(|&(last, _)| stamp_ns > last) {
+            stream.push((stamp_ns, pose));
+        }
+    }
+    stream
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn late_poses_for_older_stamps_leave_the_stream() {
+        let at = |x: f64| Isometry3::translation(x, 0.0, 0.0);
+        let log = [(100, at(1.0)), (200, at(2.0)), (150, at(1.5)), (200, at(2.1)), (300, at(3.0))];
+        let stream = online_stream(&log);
+        let stamps: Vec<u64> = stream.iter().map(|(s, _)| *s).collect();
+        assert_eq!(stamps, [100, 200, 300]);
+        assert_eq!(stream[1].1, at(2.0));
+    }
 }
