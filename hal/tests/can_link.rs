@@ -210,7 +210,7 @@ fn bus_refuses_frames_it_cannot_carry() {
     let mut nodes = LoopbackCanBus::network(CanKind::Classic, 2);
     let fd_frame = CanFrame::new(0x1, &[0; 12]).unwrap();
     assert!(matches!(nodes[0].send(&fd_frame), Err(LinkError::CanFrameTooLong { len: 12, max: 8 })));
-    let wide = CanFrame { id: 0x2000_0000, len: 1, data: [0; 64] };
+    let wide = CanFrame { id: 0x2000_0000, len: 1, data: [0; 64], extended: true };
     assert!(nodes[0].send(&wide).is_err());
     let mut link = CanLink::new(nodes.pop().unwrap(), NodeId(1));
     assert!(matches!(link.send(&vec![0; MAX_LINK_PACKET_BYTES + 1]), Err(LinkError::PacketTooLarge { .. })));

@@ -203,7 +203,7 @@ fn garbage_many_cases() {
         let mut classic = CanReassembler::<2, 64>::new(CanKind::Classic, 3);
         let mut fd = CanReassembler::<2, 64>::new(CanKind::Fd, 3);
         for (now_ms, (id, len, data)) in inputs.iter().enumerate() {
-            let mut frame = CanFrame { id: *id, len: *len % 80, data: [0; 64] };
+            let mut frame = CanFrame { id: *id, len: *len % 80, data: [0; 64], extended: true };
             frame.data.copy_from_slice(data);
             frame.data[0] &= 0x2F;
             let _ = classic.push(now_ms as u64, &frame);
@@ -334,7 +334,7 @@ fn frame_lengths_are_checked() {
     let mut classic = Receiver::new(CanKind::Classic, 1_000);
     assert_eq!(classic.push(0, &fd_frame), Err(FrameError::InvalidCanLength(32)));
     // A hand-made frame with an impossible length is refused, not trusted.
-    let bogus = CanFrame { id: 1, len: 200, data: [0; 64] };
+    let bogus = CanFrame { id: 1, len: 200, data: [0; 64], extended: true };
     assert_eq!(bogus.data().len(), 64);
     let mut fd = Receiver::new(CanKind::Fd, 1_000);
     assert_eq!(fd.push(0, &bogus), Err(FrameError::InvalidCanLength(200)));

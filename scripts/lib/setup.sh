@@ -48,7 +48,7 @@ ensure_python_venv() {
     fi
     "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$PYTHON_REQUIREMENTS"
     # Fail here, not deep inside a test, if the wheels do not import on this machine.
-    "$venv/bin/python" -c "import cv2, numpy, gtsam, evo, open3d"
+    "$venv/bin/python" -c "import cv2, numpy, gtsam, evo, open3d, can, canopen"
     echo "$want" >"$stamp"
 }
 

@@ -197,6 +197,10 @@ impl<B: CanBus> Link for CanLink<B> {
                 }
                 continue;
             };
+            if !frame.extended {
+                // A device protocol's frame (CANopen uses 11-bit ids) sharing the bus: not ours.
+                continue;
+            }
             bump(&mut self.counters.frames_received, 1);
             let now_ms = self.now_ms();
             match self.reassembler.push(now_ms, &frame) {

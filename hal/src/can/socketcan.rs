@@ -1,4 +1,4 @@
-//! [`SocketCanBus`]: a Linux SocketCAN interface (`can0`, `vcan0`) with extended ids.
+//! [`SocketCanBus`]: a Linux SocketCAN interface (`can0`, `vcan0`), standard and extended ids.
 
 use std::fmt;
 use std::io::ErrorKind;
@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use ::socketcan::{
     CanAnyFrame, CanDataFrame, CanFdFrame, CanFdSocket, CanFrame as SocketCanFrame, CanSocket, EmbeddedFrame,
-    ExtendedId, Frame, Socket,
+    ExtendedId, Frame, Socket, StandardId,
 };
 use protocol::frame::FrameError;
 use protocol::frame::can::{CanFrame, CanKind};
@@ -76,7 +76,14 @@ impl SocketCanBus {
 
     fn write(&self, frame: &CanFrame) -> std::io::Result<()> {
         let invalid = |error: FrameError| std::io::Error::new(ErrorKind::InvalidInput, error);
-        let id = ExtendedId::new(frame.id).ok_or_else(|| invalid(FrameError::InvalidCanId(frame.id)))?;
+        let id: socketcan::Id = if frame.extended {
+            ExtendedId::new(frame.id).ok_or_else(|| invalid(FrameError::InvalidCanId(frame.id)))?.into()
+        } else {
+            StandardId::new(frame.id as u16)
+                .filter(|_| frame.id <= u32::from(StandardId::MAX.as_raw()))
+                .ok_or_else(|| invalid(FrameError::InvalidCanId(frame.id)))?
+                .into()
+        };
         let len = usize::from(frame.len);
         match &self.sock {
             Sock::Classic(sock) => {
@@ -96,12 +103,12 @@ impl SocketCanBus {
     fn read(&mut self, timeout: Duration) -> std::io::Result<Option<CanFrame>> {
         let received = match &self.sock {
             Sock::Classic(sock) => sock.read_frame_timeout(timeout).map(|frame| match frame {
-                SocketCanFrame::Data(data) => extended(&data),
+                SocketCanFrame::Data(data) => ours(&data),
                 SocketCanFrame::Remote(_) | SocketCanFrame::Error(_) => None,
             }),
             Sock::Fd(sock) => sock.read_frame_timeout(timeout).map(|frame| match frame {
-                CanAnyFrame::Normal(data) => extended(&data),
-                CanAnyFrame::Fd(data) => extended(&data),
+                CanAnyFrame::Normal(data) => ours(&data),
+                CanAnyFrame::Fd(data) => ours(&data),
                 CanAnyFrame::Remote(_) | CanAnyFrame::Error(_) => None,
             }),
         };
@@ -121,12 +128,13 @@ impl SocketCanBus {
     }
 }
 
-/// Our frame for a SocketCAN data frame with an extended id, `None` for any other.
-fn extended<F: Frame>(frame: &F) -> Option<CanFrame> {
-    if !frame.is_extended() {
-        return None;
+/// Our frame for a SocketCAN data frame (standard or extended id), `None` for any other.
+fn ours<F: Frame>(frame: &F) -> Option<CanFrame> {
+    if frame.is_extended() {
+        CanFrame::new(frame.raw_id(), frame.data()).ok()
+    } else {
+        CanFrame::standard(frame.raw_id(), frame.data()).ok()
     }
-    CanFrame::new(frame.raw_id(), frame.data()).ok()
 }
 
 impl CanBus for SocketCanBus {

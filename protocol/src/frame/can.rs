@@ -138,13 +138,21 @@ pub fn can_id_destination(id: u32) -> NodeId {
     NodeId((id >> DESTINATION_SHIFT) as u8)
 }
 
-/// One CAN frame with an extended id. Bytes past `len` are not part of the frame.
+/// One CAN data frame. Bytes past `len` are not part of the frame.
+///
+/// The team link uses extended (29-bit) ids only; device protocols such as CANopen use standard
+/// (11-bit) ids on the same bus, so a frame says which it is.
 #[derive(Debug, Clone, Copy)]
 pub struct CanFrame {
     pub id: u32,
     pub len: u8,
     pub data: [u8; 64],
+    /// A 29-bit id (CAN 2.0B); `false`: an 11-bit id (CAN 2.0A).
+    pub extended: bool,
 }
+
+/// Largest standard (11-bit) CAN id.
+pub const CAN_STANDARD_ID_MASK: u32 = 0x7FF;
 
 impl CanFrame {
     /// A frame with `data`, whose length must be a valid CAN FD length (which includes every
@@ -156,8 +164,19 @@ impl CanFrame {
         if CanKind::Fd.padded_len(data.len()) != Some(data.len()) {
             return Err(FrameError::InvalidCanLength(data.len()));
         }
-        let mut frame = CanFrame { id, len: data.len() as u8, data: [0; 64] };
+        let mut frame = CanFrame { id, len: data.len() as u8, data: [0; 64], extended: true };
         frame.data.get_mut(..data.len()).ok_or(FrameError::InvalidCanLength(data.len()))?.copy_from_slice(data);
+        Ok(frame)
+    }
+
+    /// A frame with a standard (11-bit) id and `data`, whose length must be a valid CAN FD
+    /// length.
+    pub fn standard(id: u32, data: &[u8]) -> Result<Self, FrameError> {
+        if id > CAN_STANDARD_ID_MASK {
+            return Err(FrameError::InvalidCanId(id));
+        }
+        let mut frame = CanFrame::new(id, data)?;
+        frame.extended = false;
         Ok(frame)
     }
 
@@ -169,7 +188,7 @@ impl CanFrame {
 
 impl PartialEq for CanFrame {
     fn eq(&self, other: &Self) -> bool {
-        self.id == other.id && self.data() == other.data()
+        self.id == other.id && self.extended == other.extended && self.data() == other.data()
     }
 }
 
@@ -254,7 +273,7 @@ pub fn segment(kind: CanKind, id: u32, packet: &[u8], mut emit: impl FnMut(&CanF
     }
     let len = packet.len();
     let max = kind.max_data();
-    let mut frame = CanFrame { id, len: 0, data: [PADDING; 64] };
+    let mut frame = CanFrame { id, len: 0, data: [PADDING; 64], extended: true };
 
     if len <= kind.single_max() {
         let pci: &[u8] = if len <= SINGLE_SHORT_MAX { &[PCI_SINGLE << 4 | len as u8] } else { &[0, len as u8] };
@@ -428,7 +447,7 @@ impl<const SLOTS: usize, const MAX: usize> CanReassembler<SLOTS, MAX> {
         if self.kind.padded_len(len) != Some(len) {
             return Err(FrameError::InvalidCanLength(len));
         }
-        if frame.id > CAN_ID_MASK {
+        if frame.id > CAN_ID_MASK || !frame.extended {
             return Err(FrameError::InvalidCanId(frame.id));
         }
         let data = frame.data();
