@@ -70,6 +70,7 @@ fn view(size: &Size) -> TeamView {
                 robot: id,
                 connected: true,
                 mode: Some(Mode::Autonomous),
+                sensors: None,
                 filter: Some(FilterHealth {
                     status: FilterStatus::Nominal,
                     position_std_m: 0.2,

@@ -52,6 +52,8 @@ pub struct RobotView {
     pub connected: bool,
     pub mode: Option<Mode>,
     pub filter: Option<FilterHealth>,
+    /// The devices' availability from the last telemetry (`None`: not devices, or not reported).
+    pub sensors: Option<protocol::message::SensorAvailability>,
     pub tasks: Vec<TaskStats>,
     pub queues: Vec<QueueStats>,
     pub links: Vec<LinkStats>,

@@ -32,6 +32,7 @@ fn view() -> TeamView {
         robot: id,
         connected: true,
         mode: None,
+        sensors: None,
         filter: None,
         tasks: vec![],
         queues: vec![],

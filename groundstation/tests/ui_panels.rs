@@ -27,6 +27,8 @@ fn robot(id: u8, staleness: Staleness, last_message_ns: u64, mode: Mode) -> Robo
         robot: id,
         connected: id != 4,
         mode: Some(mode),
+        // Robot 2 reads devices and has lost its wheels; the others report none.
+        sensors: (id == 2).then_some(protocol::message::SensorAvailability { imu: true, wheels: false, head: true }),
         filter: Some(FilterHealth {
             status: FilterStatus::Nominal,
             position_std_m: 0.12,
@@ -184,6 +186,10 @@ fn robots_panel_shows_ids_modes_and_staleness() {
     h.get_by_label("LOST");
     assert_eq!(h.query_all_by_label("OK").count(), 2);
     h.get_by_label("not connected to robot 1's frame");
+    // The devices of the robot that reads devices, from its telemetry, each with its state.
+    assert_eq!(h.query_all_by_label("IMU ok").count(), 1);
+    h.get_by_label("wheels unavailable");
+    h.get_by_label("head ok");
     assert_eq!(h.get_all_by_label("CPU 45.5 %, memory 1.00 / 4.00 GiB").count(), 4);
     h.get_by_label("source: udp://127.0.0.1:47800");
     // Task timing in the table.

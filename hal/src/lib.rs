@@ -3,6 +3,7 @@
 
 pub mod asl;
 pub mod can;
+pub mod canopen;
 pub mod emulator;
 pub mod feedlog;
 pub mod keyfile;
@@ -12,3 +13,4 @@ pub mod replay;
 pub mod sensor;
 pub mod serial;
 pub mod udp;
+pub mod xsens;

@@ -255,6 +255,43 @@ pub trait SensorSource {
     /// exactly `width × height` of its [`StereoInfo`]). An error if no pair is pending or a
     /// buffer has another size.
     fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError>;
+
+    /// A live source (the rover's devices) is never exhausted: `next_event` returns `Ok(None)`
+    /// when nothing is due *yet*, and its stamps are the host's `CLOCK_MONOTONIC` nanoseconds.
+    fn is_live(&self) -> bool {
+        false
+    }
+
+    /// What a live source knows about its devices; `None` for recorded sources.
+    fn device_health(&self) -> Option<DeviceHealth> {
+        None
+    }
+
+    /// A live source's device changes: (stamp on its clock, what happened), oldest first.
+    fn device_log(&self) -> Vec<(u64, String)> {
+        Vec::new()
+    }
+}
+
+/// One device of a live source, as its driver sees it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DeviceStatus {
+    /// Delivering now.
+    pub available: bool,
+    /// Samples delivered since start.
+    pub samples: u64,
+    /// Times the device went from available to unavailable.
+    pub dropouts: u64,
+    /// Frames rejected (checksum, malformed) and transport errors.
+    pub errors: u64,
+}
+
+/// The devices behind a live source.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct DeviceHealth {
+    pub imu: DeviceStatus,
+    pub wheels: DeviceStatus,
+    pub head: DeviceStatus,
 }
 
 impl<S: SensorSource + ?Sized> SensorSource for Box<S> {
@@ -268,6 +305,18 @@ impl<S: SensorSource + ?Sized> SensorSource for Box<S> {
 
     fn read_stereo(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), SensorError> {
         (**self).read_stereo(left, right)
+    }
+
+    fn is_live(&self) -> bool {
+        (**self).is_live()
+    }
+
+    fn device_health(&self) -> Option<DeviceHealth> {
+        (**self).device_health()
+    }
+
+    fn device_log(&self) -> Vec<(u64, String)> {
+        (**self).device_log()
     }
 }
 

@@ -35,6 +35,7 @@ fn telemetry(stamp_ms: u64) -> AnyMessage {
         links: Default::default(),
         auth_rejections: 0,
         classes: Default::default(),
+        sensors: None,
     })
 }
 

@@ -248,7 +248,7 @@ pub enum ProcessKind {
 /// `telemetry/tasks`: one fixed-rate task's counters, published about once a second.
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
 #[repr(C)]
-#[type_name("rover.TaskStats.v2")]
+#[type_name("rover.TaskStats.v3")]
 pub struct TaskStatsMsg {
     pub stamp_ns: u64,
     pub period_ns: u64,
@@ -276,11 +276,18 @@ pub struct TaskStatsMsg {
     pub queue_topic: u32,
     pub queue_depth_max: u32,
     pub queue_capacity: u32,
-    pub reserved: u32,
+    /// The driver's devices ([`Self::DEVICES_REPORTED`] and one bit per available device); 0
+    /// from every other process and from sources without devices.
+    pub devices: u32,
 }
 
 impl TaskStatsMsg {
     /// `period_ns` of a report from a node without a fixed-rate task (the lockstep runner): its
     /// timing fields mean nothing, its CPU and memory are measured.
     pub const NO_TASK: u64 = 0;
+    /// `devices`: the process reads devices (the bits below mean something).
+    pub const DEVICES_REPORTED: u32 = 1 << 31;
+    pub const DEVICE_IMU: u32 = 1;
+    pub const DEVICE_WHEELS: u32 = 1 << 1;
+    pub const DEVICE_HEAD: u32 = 1 << 2;
 }

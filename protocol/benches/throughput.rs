@@ -42,6 +42,7 @@ fn workload() -> Vec<AnyMessage> {
         links: heapless::Vec::new(),
         auth_rejections: 0,
         classes: heapless::Vec::new(),
+        sensors: None,
     };
     for task in ["vision", "filter", "mapper", "comms"] {
         let _ = telemetry.tasks.push(TaskStats {

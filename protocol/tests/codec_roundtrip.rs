@@ -111,14 +111,16 @@ fn commands_cannot_be_sent_unauthenticated_and_others_cannot_be_signed() {
 
 proptest! {
     #[test]
-    fn telemetry_v2_class_bytes_round_trip_and_v1_is_refused(telemetry in common::telemetry(), seq in any::<u32>()) {
+    fn telemetry_v3_round_trips_and_older_versions_are_refused(telemetry in common::telemetry(), seq in any::<u32>()) {
         let message = AnyMessage::from(telemetry);
         let mut buf = [0u8; MAX_PACKET_BYTES];
         let len = encode_any(&message, seq, &mut buf);
-        prop_assert_eq!(buf[2], 2, "Telemetry travels as version 2");
+        prop_assert_eq!(buf[2], 3, "Telemetry travels as version 3 (v2 + the devices' availability)");
         prop_assert_eq!(&decode(&buf[..len]).map_err(|e| TestCaseError::fail(format!("{e}")))?.message, &message);
-        // A v1 receiver's packet (same key, old version) must not be read as v2.
-        buf[2] = 1;
-        prop_assert_eq!(decode(&buf[..len]), Err(DecodeError::UnsupportedVersion { key: 0x11, version: 1 }));
+        // An older sender's packet (same key, old version) must not be read as v3.
+        for old in [1, 2] {
+            buf[2] = old;
+            prop_assert_eq!(decode(&buf[..len]), Err(DecodeError::UnsupportedVersion { key: 0x11, version: old }));
+        }
     }
 }

@@ -71,6 +71,7 @@ fn telemetry() -> AnyMessage {
         links: heapless::Vec::new(),
         auth_rejections: 0,
         classes: Default::default(),
+        sensors: None,
     })
 }
 

@@ -68,6 +68,7 @@ fn largest_telemetry() -> Telemetry {
         links: heapless::Vec::new(),
         auth_rejections: u32::MAX,
         classes: heapless::Vec::new(),
+        sensors: Some(protocol::message::SensorAvailability { imu: true, wheels: true, head: true }),
     };
     while telemetry
         .tasks

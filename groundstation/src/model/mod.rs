@@ -127,6 +127,7 @@ impl RobotState {
                 robot,
                 connected: false,
                 mode: None,
+                sensors: None,
                 filter: None,
                 tasks: Vec::new(),
                 queues: Vec::new(),
@@ -519,6 +520,7 @@ impl TeamModel {
         v.mode = Some(t.mode);
         v.filter = Some(t.filter);
         v.resources = Some(t.resources);
+        v.sensors = t.sensors;
         v.tasks = t.tasks.to_vec();
         v.queues = t.queues.to_vec();
         v.links = t.links.to_vec();

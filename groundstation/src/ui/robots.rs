@@ -83,6 +83,15 @@ fn robot_card(ui: &mut Ui, view: &TeamView, robot: &RobotView) {
             ui.label(text("filter: unknown".to_owned()));
         }
     }
+    if let Some(sensors) = &robot.sensors {
+        ui.horizontal(|ui| {
+            ui.label("devices:");
+            for (name, up) in [("IMU", sensors.imu), ("wheels", sensors.wheels), ("head", sensors.head)] {
+                let (colour, state) = if up { (palette::GOOD, "ok") } else { (palette::LOST, "unavailable") };
+                ui.colored_label(colour, format!("{name} {state}"));
+            }
+        });
+    }
     let reference = view.reference_robot.map_or_else(|| "?".to_owned(), |r| r.to_string());
     if robot.connected {
         let sigma = robot.position_cov_xy_m2.map(|c| {

@@ -162,6 +162,7 @@ pub fn telemetry(robot: u8, stamp_ns: u64, telemetry_bytes: u64) -> Telemetry {
         links: heapless::Vec::new(),
         auth_rejections: 0,
         classes,
+        sensors: None,
     }
 }
 

@@ -1,5 +1,7 @@
 //! CAN: the [`CanBus`] trait over which [`CanLink`] carries packets, with an in-memory bus
-//! ([`LoopbackCanBus`]) and SocketCAN ([`SocketCanBus`], Linux only).
+//! ([`LoopbackCanBus`]), SocketCAN ([`SocketCanBus`], Linux only), USB-CAN adapters speaking
+//! SLCAN ([`SlcanBus`], and [`SlcanAdapter`] emulating one), and [`CanInterface`] naming any
+//! of them in one string.
 //!
 //! # CAN ids
 //!
@@ -16,7 +18,9 @@
 //! header's destination; bytes without a valid header go as bulk to [`NodeId::BROADCAST`]: the
 //! lowest priority, so opaque traffic never delays commands.
 
+pub mod interface;
 mod loopback;
+pub mod slcan;
 #[cfg(target_os = "linux")]
 mod socketcan;
 
@@ -31,8 +35,10 @@ use crate::link::{
     Link, LinkCounters, LinkError, MAX_LINK_PACKET_BYTES, bump, check_packet_len, deadline_after, deliver,
 };
 
+pub use interface::{CanInterface, InterfaceError};
 pub use loopback::{DEFAULT_QUEUE_FRAMES, LoopbackCanBus};
 pub use protocol::frame::can::CanFrame;
+pub use slcan::{SlcanAdapter, SlcanBus};
 #[cfg(target_os = "linux")]
 pub use socketcan::SocketCanBus;
 

@@ -130,6 +130,10 @@ pub enum DriverKind {
     Sim,
     /// Sensors from a recorded dataset (`driver.replay_path`: EuRoC/ASL or KITTI layout).
     Replay,
+    /// The rover's devices (`[driver.devices]`): the IMU over serial (Xsens MT binary protocol),
+    /// the wheel drives and the pan-tilt head over CAN (CANopen); the cameras publish their pairs
+    /// on the robot's bus themselves.
+    Devices,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -148,11 +152,65 @@ pub struct DriverConfig {
     /// passes it through untouched to whoever provides the simulated sensors, which validates it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sim: Option<toml::Table>,
+    /// With `kind = "devices"`: where the devices are.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub devices: Option<DevicesConfig>,
 }
 
 impl Default for DriverConfig {
     fn default() -> Self {
-        DriverConfig { kind: DriverKind::Replay, replay_path: None, replay_speed: 1.0, duration_s: None, sim: None }
+        DriverConfig {
+            kind: DriverKind::Replay,
+            replay_path: None,
+            replay_speed: 1.0,
+            duration_s: None,
+            sim: None,
+            devices: None,
+        }
+    }
+}
+
+/// `[driver.devices]`: the rover's IMU, wheel drives and pan-tilt head.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DevicesConfig {
+    /// Serial port of the Xsens IMU (e.g. `/dev/ttyUSB0`).
+    pub imu_port: String,
+    pub imu_baud: u32,
+    /// `socketcan:can0` or `slcan:/dev/ttyACM0@1000000` (`hal::can::interface`).
+    pub can_interface: String,
+    /// CANopen node ids of the wheel drives: front-left, front-right, rear-left, rear-right.
+    pub wheel_nodes: [u8; 4],
+    /// CANopen node id of the pan-tilt unit; none: the head is fixed.
+    pub head_node: Option<u8>,
+    /// SYNC period of the CANopen master: one wheel odometry sample per SYNC.
+    pub sync_period_ms: u32,
+    /// A node whose heartbeat is this late is reported missing.
+    pub heartbeat_timeout_ms: u32,
+    pub wheel_radius_m: f64,
+    /// Distance between the left and right wheels' contact points.
+    pub track_width_m: f64,
+    /// Encoder counts per wheel revolution (after the gear).
+    pub counts_per_rev: u32,
+    /// Relative 1σ of speed and yaw rate the wheel odometry claims (slip, scale).
+    pub wheel_relative_sigma: f64,
+}
+
+impl Default for DevicesConfig {
+    fn default() -> Self {
+        DevicesConfig {
+            imu_port: "/dev/ttyUSB0".into(),
+            imu_baud: 921_600,
+            can_interface: "socketcan:can0".into(),
+            wheel_nodes: [0x11, 0x12, 0x13, 0x14],
+            head_node: Some(0x20),
+            sync_period_ms: 20,
+            heartbeat_timeout_ms: 300,
+            wheel_radius_m: 0.1,
+            track_width_m: 0.6,
+            counts_per_rev: 4096 * 100,
+            wheel_relative_sigma: 0.1,
+        }
     }
 }
 
@@ -563,6 +621,8 @@ pub enum DeltaSigmaConfig {
 pub enum LinkKind {
     Udp,
     Serial,
+    /// The team link over a CAN bus (`link.can_interface`), with the protocol's CAN framing.
+    Can,
     None,
 }
 
@@ -584,6 +644,8 @@ pub struct LinkConfig {
     /// Serial: device path and baud rate.
     pub serial_device: Option<String>,
     pub serial_baud: u32,
+    /// CAN: `socketcan:can0` or `slcan:/dev/ttyACM0@1000000` (`hal::can::interface`).
+    pub can_interface: Option<String>,
     /// The link's capacity the comms scheduler keeps under (a radio's, not the Ethernet's).
     pub bandwidth_bytes_per_s: u64,
     /// UDP address of the ground link (the ground station, or the mission's relay); none: no
@@ -605,6 +667,7 @@ impl Default for LinkConfig {
             peers: Vec::new(),
             serial_device: None,
             serial_baud: 57_600,
+            can_interface: None,
             bandwidth_bytes_per_s: 12_500,
             ground_feed: None,
             ground_bandwidth_bytes_per_s: crate::nodes::comms::GROUND_RATE_BYTES_PER_S,
@@ -754,6 +817,16 @@ impl RoverConfig {
                 })?;
                 check(d.sim.is_none(), "driver.sim", || "only with driver.kind = \"sim\"".into())?;
             }
+            DriverKind::Devices => {
+                let devices = d.devices.as_ref().ok_or_else(|| ConfigError::Invalid {
+                    key: "driver.devices".into(),
+                    problem: "required with driver.kind = \"devices\"".into(),
+                })?;
+                devices.validate()?;
+            }
+        }
+        if d.kind != DriverKind::Devices {
+            check(d.devices.is_none(), "driver.devices", || "only with driver.kind = \"devices\"".into())?;
         }
 
         let c = &self.camera;
@@ -998,8 +1071,56 @@ impl RoverConfig {
                     format!("{}: expected 300..=4000000", l.serial_baud)
                 })?;
             }
+            LinkKind::Can => {
+                let interface = l.can_interface.as_deref().unwrap_or_default();
+                interface.parse::<hal::can::interface::CanInterface>().map_err(|e| ConfigError::Invalid {
+                    key: "link.can_interface".into(),
+                    problem: format!("{interface:?}: {e}"),
+                })?;
+            }
             LinkKind::None => {}
         }
+        Ok(())
+    }
+}
+
+impl DevicesConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        let key = |k: &str| format!("driver.devices.{k}");
+        check(!self.imu_port.is_empty(), &key("imu_port"), || "required".into())?;
+        check((300..=4_000_000).contains(&self.imu_baud), &key("imu_baud"), || {
+            format!("{}: expected 300..=4000000", self.imu_baud)
+        })?;
+        self.can_interface.parse::<hal::can::interface::CanInterface>().map_err(|e| ConfigError::Invalid {
+            key: key("can_interface"),
+            problem: format!("{:?}: {e}", self.can_interface),
+        })?;
+        let mut nodes: Vec<u8> = self.wheel_nodes.iter().copied().chain(self.head_node).collect();
+        check(nodes.iter().all(|n| (1..=127).contains(n)), &key("wheel_nodes"), || {
+            format!("{nodes:?}: CANopen node ids are 1..=127")
+        })?;
+        nodes.sort_unstable();
+        nodes.dedup();
+        check(nodes.len() == 4 + usize::from(self.head_node.is_some()), &key("wheel_nodes"), || {
+            "the wheel drives and the head need distinct node ids".into()
+        })?;
+        check((1..=1000).contains(&self.sync_period_ms), &key("sync_period_ms"), || {
+            format!("{} ms: expected 1..=1000", self.sync_period_ms)
+        })?;
+        check(self.heartbeat_timeout_ms > self.sync_period_ms, &key("heartbeat_timeout_ms"), || {
+            "must exceed the SYNC period".into()
+        })?;
+        for (name, value) in [("wheel_radius_m", self.wheel_radius_m), ("track_width_m", self.track_width_m)] {
+            check(value.is_finite() && value > 0.0 && value < 10.0, &key(name), || {
+                format!("{value}: expected more than 0 and less than 10 m")
+            })?;
+        }
+        check(self.counts_per_rev > 0, &key("counts_per_rev"), || "must be positive".into())?;
+        check(
+            self.wheel_relative_sigma.is_finite() && self.wheel_relative_sigma > 0.0,
+            &key("wheel_relative_sigma"),
+            || "must be positive".into(),
+        )?;
         Ok(())
     }
 }

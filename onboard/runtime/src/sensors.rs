@@ -4,7 +4,9 @@
 //! - `replay`: a recorded dataset (EuRoC/ASL or KITTI, [`hal::replay`]), in the firmware;
 //! - `sim`: the software-in-the-loop simulator. The firmware does not contain it: the `sil`
 //!   harness runs these same processes with its own [`SourceProvider`] that knows the simulator
-//!   (the way copper-rs injects simulated sources at the source task).
+//!   (the way copper-rs injects simulated sources at the source task);
+//! - `devices`: the rover's IMU over serial and wheels and head over CANopen ([`devices`]), a
+//!   live source; the cameras publish on the bus themselves.
 //!
 //! Every other process needs only the [`SensorSetup`]: the stereo calibration of the images the
 //! driver publishes and the IMU's noise model. It comes from the configuration
@@ -16,6 +18,8 @@ use hal::replay::{self, Dataset};
 use hal::sensor::{SensorSource, StereoCalibration};
 
 use crate::config::{DriverKind, RoverConfig};
+
+pub mod devices;
 
 /// Why the sensors could not be set up.
 #[derive(Debug, thiserror::Error)]
@@ -45,6 +49,14 @@ impl SourceProvider for FirmwareSources {
         match config.driver.kind {
             DriverKind::Sim => Err(SensorSetupError::SimNotAvailable),
             DriverKind::Replay => Ok(Box::new(open_replay(config)?.source)),
+            DriverKind::Devices => {
+                let devices = config
+                    .driver
+                    .devices
+                    .as_ref()
+                    .ok_or_else(|| SensorSetupError::Invalid("driver.devices is not set".into()))?;
+                Ok(Box::new(devices::DevicesSource::open(devices, config.rates.imu_hz)?))
+            }
         }
     }
 }
@@ -90,9 +102,9 @@ pub fn sensor_setup(config: &RoverConfig) -> Result<SensorSetup, SensorSetupErro
         .transpose()?;
     let configured_noise = config.imu.noise.map(|n| n.noise());
     match config.driver.kind {
-        DriverKind::Sim => {
+        DriverKind::Sim | DriverKind::Devices => {
             let calibration = configured.ok_or_else(|| {
-                SensorSetupError::Invalid("camera.calibration is required with a simulated driver".into())
+                SensorSetupError::Invalid("camera.calibration is required with a simulated driver or devices".into())
             })?;
             Ok(SensorSetup { calibration, imu_noise: configured_noise.unwrap_or(EUROC_IMU_NOISE), has_imu: true })
         }

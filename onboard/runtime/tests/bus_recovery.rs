@@ -214,7 +214,7 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         queue_topic: 0,
         queue_depth_max: 0,
         queue_capacity: 0,
-        reserved: 0,
+        devices: 0,
     };
     let imu = ImuMsg { stamp_ns, ..imu(0) };
     let messages = [

@@ -480,7 +480,7 @@ fn task_stats(process: ProcessKind, overruns: u64, stamp_ns: u64, cpu_ns: u64) -
         queue_topic: if process == ProcessKind::Filter { u32::from(Topic::Imu.code()) } else { 0 },
         queue_depth_max: if process == ProcessKind::Filter { 7 } else { 0 },
         queue_capacity: if process == ProcessKind::Filter { 512 } else { 0 },
-        reserved: 0,
+        devices: 0,
     }
 }
 
@@ -542,6 +542,12 @@ fn ground_station_gets_telemetry_and_commands_are_authenticated() {
             node.on_message(Message::FilterState(&filter_state(t)), &mut out).unwrap();
             node.on_message(Message::TaskStats(&task_stats(ProcessKind::Filter, 3, t, t / 4)), &mut out).unwrap();
             node.on_message(Message::TaskStats(&task_stats(ProcessKind::Vision, 1, t, t / 2)), &mut out).unwrap();
+            // The driver reads devices: IMU and head deliver, the wheels do not.
+            let driver_stats = TaskStatsMsg {
+                devices: TaskStatsMsg::DEVICES_REPORTED | TaskStatsMsg::DEVICE_IMU | TaskStatsMsg::DEVICE_HEAD,
+                ..task_stats(ProcessKind::Driver, 0, t, 0)
+            };
+            node.on_message(Message::TaskStats(&driver_stats), &mut out).unwrap();
             if t >= next_tick {
                 node.on_tick(t, &mut out).unwrap();
                 next_tick = t + 50_000_000;
@@ -565,13 +571,14 @@ fn ground_station_gets_telemetry_and_commands_are_authenticated() {
     assert_eq!(t.robot, RobotId(3));
     assert_eq!(t.mode, Mode::Idle);
     assert_eq!(t.filter.status, FilterStatus::Nominal);
+    assert_eq!(t.sensors, Some(SensorAvailability { imu: true, wheels: false, head: true }));
     assert!((t.filter.position_std_m - 0.2).abs() < 1e-4 && (t.filter.yaw_std_rad - 0.01).abs() < 1e-5);
     let task = |name: &str| t.tasks.iter().find(|s| s.task.as_str() == name).cloned().unwrap();
     let filter_task = task("filter.0");
     assert_eq!((filter_task.deadline_overruns, filter_task.jitter_p99_us, filter_task.jitter_max_us), (3, 250, 900));
     assert_eq!((filter_task.period_us, filter_task.releases), (5_000, 1000));
     assert_eq!(task("vision.0").deadline_overruns, 1);
-    assert_eq!(t.resources.mem_used_kib, 2 * (50 << 10));
+    assert_eq!(t.resources.mem_used_kib, 3 * (50 << 10));
     // Filter 1/4 core + vision 1/2 core on one configured core: 750 ‰ (± clock steps).
     assert!((700..=800).contains(&t.resources.cpu_permille), "cpu {}", t.resources.cpu_permille);
     let filter_queue = t.queues.iter().find(|q| q.queue.as_str() == "filter").unwrap();

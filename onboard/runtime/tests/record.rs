@@ -121,7 +121,7 @@ fn one_of_each() -> Vec<OwnedMessage> {
             queue_topic: 0,
             queue_depth_max: 0,
             queue_capacity: 0,
-            reserved: 0,
+            devices: 0,
         }),
     ]
 }

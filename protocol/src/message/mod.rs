@@ -15,7 +15,7 @@ pub use mapping::{
 };
 pub use state::{
     ClassBytes, FilterHealth, FilterStatus, Heartbeat, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage,
-    TaskStats, Telemetry,
+    SensorAvailability, TaskStats, Telemetry,
 };
 pub use transport::Ack;
 
@@ -190,7 +190,7 @@ messages! {
     Heartbeat       = 0x01, v 1, LatestWins, Control;
     Ack             = 0x02, v 1, LatestWins, Control;
     PoseEstimate    = 0x10, v 1, LatestWins, State;
-    Telemetry       = 0x11, v 2, LatestWins, Telemetry;
+    Telemetry       = 0x11, v 3, LatestWins, Telemetry;
     Constraint      = 0x20, v 1, Reliable,   Constraint;
     MatchAttempt    = 0x21, v 1, Reliable,   Constraint;
     SubmapHeader    = 0x30, v 1, Reliable,   Bulk;

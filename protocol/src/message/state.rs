@@ -67,6 +67,14 @@ pub struct FilterHealth {
     pub vo_age_ms: u32,
 }
 
+/// Which of the robot's devices deliver (v3): what its sensor driver reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, MaxSize)]
+pub struct SensorAvailability {
+    pub imu: bool,
+    pub wheels: bool,
+    pub head: bool,
+}
+
 /// Name of a task, queue or link in telemetry.
 pub type Label = String<12>;
 
@@ -152,4 +160,7 @@ pub struct Telemetry {
     pub auth_rejections: u32,
     /// Bytes sent per message class (v2), in ascending key order.
     pub classes: Vec<ClassBytes, MAX_CLASSES>,
+    /// The devices' availability (v3); `None` when the sensors are not devices (a dataset
+    /// replay, the simulator in memory) or the driver has not reported yet.
+    pub sensors: Option<SensorAvailability>,
 }

@@ -184,10 +184,31 @@ pub fn telemetry() -> impl Strategy<Value = Telemetry> {
         heapless_vec::<_, MAX_LINKS>(link),
         any::<u32>(),
         heapless_vec::<_, MAX_CLASSES>(class),
+        proptest::option::of(
+            any::<(bool, bool, bool)>().prop_map(|(imu, wheels, head)| protocol::message::SensorAvailability {
+                imu,
+                wheels,
+                head,
+            }),
+        ),
     )
-        .prop_map(|(robot, stamp_ns, mode, filter, resources, tasks, queues, links, auth_rejections, classes)| {
-            Telemetry { robot, stamp_ns, mode, filter, resources, tasks, queues, links, auth_rejections, classes }
-        })
+        .prop_map(
+            |(robot, stamp_ns, mode, filter, resources, tasks, queues, links, auth_rejections, classes, sensors)| {
+                Telemetry {
+                    robot,
+                    stamp_ns,
+                    mode,
+                    filter,
+                    resources,
+                    tasks,
+                    queues,
+                    links,
+                    auth_rejections,
+                    classes,
+                    sensors,
+                }
+            },
+        )
 }
 
 pub fn constraint_id() -> impl Strategy<Value = ConstraintId> {

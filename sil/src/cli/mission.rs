@@ -15,7 +15,7 @@ use sim::scenario::experiments;
 use crate::mission::{MissionOptions, MissionReport, RadioPreset, Runner};
 
 const USAGE: &str = "usage: sil mission [--robots N] [--scenario NAME] [--duration S] [--out DIR]
-                       [--runner lockstep|process] [--json] [options]
+                       [--runner lockstep|process|hil] [--json] [options]
 
   --robots N             rovers in the team (default 2)
   --scenario NAME        a site (moon, mars: rosettes of petals for any team size) or a named
@@ -30,8 +30,13 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario NAME] [--durati
                          estimate.tum, truth.tum, graph.g2o, map.ply, map.bt, map.png;
                          report.json and report.md
   --runner R             lockstep (all robots in this process, simulated time, deterministic;
-                         default) or process (one OS process per component over iceoryx2,
-                         fixed-rate tasks on the wall clock)
+                         default), process (one OS process per component over iceoryx2,
+                         fixed-rate tasks on the wall clock) or hil (the process runner with
+                         each robot's IMU on a serial line (Xsens MT) and its wheels and head on
+                         CAN (CANopen behind an SLCAN adapter), played by the simulator; `sil hil`)
+  --device-fault F       hil runner: [R:]FAULT@START+DURATION with FAULT imu-unplug, imu-noise,
+                         drive-silent:K (wheel 0..4), babble or sync-lost, on robot index R
+                         (default 0); repeatable; recorded in device_faults.json
   --radio R              serial (57.6 kbit/s radio, default) or wifi (lossy mesh)
   --threads N            lockstep runner: threads stepping the robots in parallel between its
                          barriers (default: the machine's cores; the outputs do not depend on it)
@@ -119,11 +124,20 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                 options.downscale = super::downscale(&text(&mut parser, "--downscale")?)?;
             }
             Long("out") => options.out = parser.value().map_err(|e| e.to_string())?.into(),
+            Long("device-fault") => {
+                options
+                    .device_faults
+                    .push(text(&mut parser, "--device-fault")?.parse().map_err(|e| format!("--device-fault: {e}"))?);
+            }
             Long("runner") => {
                 options.runner = match text(&mut parser, "--runner")?.as_str() {
                     "lockstep" => Runner::Lockstep,
                     "process" => Runner::Process,
-                    other => return Err(format!("--runner: expected lockstep or process, got {other:?}")),
+                    "hil" => {
+                        options.hil = true;
+                        Runner::Process
+                    }
+                    other => return Err(format!("--runner: expected lockstep, process or hil, got {other:?}")),
                 };
             }
             Long("radio") => {
@@ -259,6 +273,12 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
     }
     if !options.faults.is_empty() && options.runner != Runner::Process {
         return Err("--kill needs --runner process".to_owned());
+    }
+    if !options.device_faults.is_empty() && !options.hil {
+        return Err("--device-fault needs --runner hil".to_owned());
+    }
+    if let Some(fault) = options.device_faults.iter().find(|f| f.robot >= options.robots) {
+        return Err(format!("--device-fault: robot index {} of {} robots", fault.robot, options.robots));
     }
     if let Some(fault) = options.faults.iter().find(|f| f.robot >= options.robots) {
         return Err(format!("--kill: robot index {} of {} robots", fault.robot, options.robots));

@@ -4,6 +4,7 @@
 //! (g2o), the map (PLY, OctoMap `.bt`), and `report.json` + `report.md`.
 
 pub mod events;
+pub mod hil;
 pub mod lockstep;
 pub mod matching;
 pub mod process;
@@ -112,6 +113,12 @@ pub struct MissionOptions {
     /// Lockstep runner: log every robot's graph inserts and replay them into the thesis's
     /// back-end variants after the mission (`RobotReport::replays`).
     pub replay_variants: bool,
+    /// Process runner: hardware in the loop. Each robot's firmware reads its IMU over a serial
+    /// line and its wheels and head over CAN from the simulator's emulated devices
+    /// ([`hil::DeviceBench`]), instead of the simulator in its driver.
+    pub hil: bool,
+    /// HIL: device faults injected during the run.
+    pub device_faults: Vec<hil::DeviceFaultEvent>,
 }
 
 impl Default for MissionOptions {
@@ -143,6 +150,8 @@ impl Default for MissionOptions {
             step_threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             progress: false,
             replay_variants: false,
+            hil: false,
+            device_faults: Vec::new(),
         }
     }
 }

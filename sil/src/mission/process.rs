@@ -33,10 +33,11 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use serde_json::{Value, json};
 
-use onboard::config::{LinkKind, PeerConfig, RoverConfig};
+use onboard::config::{DriverKind, LinkKind, PeerConfig, RoverConfig};
 use onboard::process::{EPOCH_FILE_ENV, NodeKind, PID_DIR, READY_DIR, monotonic_ns, read_json, write_json};
 use sim::world::World;
 
+use super::hil::DeviceBench;
 use super::report::{MissionReport, ProcessReport, RobotReport, TaskTiming};
 use super::world::{
     marker_model_name, mission_world, robot_config as mission_robot_config, robot_id, truth_at_captures,
@@ -276,13 +277,27 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         .enable_ground(&nodes, ground, &GroundLinkEmulation { seed: options.seed, ..options.ground_link.clone() })
         .map_err(setup)?;
     let mut configs = Vec::new();
+    let mut benches = Vec::new();
     for robot in 0..options.robots {
         let dir = robot_dir(&out, robot);
         std::fs::create_dir_all(&dir).map_err(|e| MissionError::Io { path: dir.clone(), source: e })?;
         clear_robot_dir(&dir)?;
         let bind = free_local_port()?;
         relay.set_robot_addr(robot, bind);
-        let config = robot_config(options, &world, robot, &dir, bind, &relay)?;
+        let mut config = robot_config(options, &world, robot, &dir, bind, &relay)?;
+        if options.hil {
+            let setup_of = onboard::sensors::sensor_setup(&config).map_err(setup)?;
+            let geometry = onboard::bus::ImageGeometry {
+                width_px: setup_of.calibration.left.width_px,
+                height_px: setup_of.calibration.left.height_px,
+            };
+            let bench = DeviceBench::open(&config, &dir, geometry)?;
+            config.driver.kind = DriverKind::Devices;
+            config.driver.sim = None;
+            config.driver.devices = Some(super::hil::devices_config(&bench.imu_path, &bench.can_path));
+            config.validate().map_err(|e| setup(format!("robot {robot} configuration: {e}")))?;
+            benches.push(bench);
+        }
         let path = dir.join("rover.toml");
         std::fs::write(&path, config.to_toml_string())
             .map_err(|e| MissionError::Io { path: path.clone(), source: e })?;
@@ -337,11 +352,17 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         setup_start.elapsed().as_secs_f64()
     );
 
+    for bench in &benches {
+        bench.start(epoch_ns);
+    }
     let end_ns = epoch_ns + (options.duration_s * 1e9) as u64 + TAIL.as_nanos() as u64;
     let mut faults = FaultPlan::new(&options.faults);
+    let mut device_faults = super::hil::DeviceFaultPlan::new(&options.device_faults);
     while monotonic_ns() < end_ns {
         relay.pump(relay_ms(epoch_ns));
-        faults.inject_due(monotonic_ns().saturating_sub(epoch_ns) as f64 * 1e-9, &configs, &supervisors);
+        let now_s = monotonic_ns().saturating_sub(epoch_ns) as f64 * 1e-9;
+        faults.inject_due(now_s, &configs, &supervisors);
+        device_faults.apply_due(now_s, &benches);
         for (robot, child) in supervisors.iter_mut().enumerate() {
             if let Ok(Some(status)) = child.try_wait() {
                 failure = Some(format!("the supervisor of robot {robot} exited early ({status})"));
@@ -353,6 +374,15 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         std::thread::sleep(RELAY_PERIOD);
     }
     stop_supervisors(&mut supervisors, &mut relay, epoch_ns);
+    for bench in benches {
+        if let Err(e) = bench.stop() {
+            failure.get_or_insert(e.to_string());
+        }
+    }
+    let device_faults_path = out.join("device_faults.json");
+    if !options.device_faults.is_empty() {
+        write_json(&device_faults_path, &Value::Array(device_faults.done)).map_err(process_error)?;
+    }
     if let Some(mut ground) = relay.finish_ground() {
         ground.flush().map_err(|e| MissionError::Output(e.to_string()))?;
     }
@@ -374,7 +404,7 @@ pub fn run_mission_with_exe(options: &MissionOptions, exe: &Path) -> Result<Miss
         processes.extend(procs);
     }
     let report = MissionReport {
-        runner: "process".to_owned(),
+        runner: if options.hil { "hil" } else { "process" }.to_owned(),
         scenario: options.scenario.clone(),
         seed: options.seed,
         duration_s: options.duration_s,

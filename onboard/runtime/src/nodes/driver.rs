@@ -37,6 +37,8 @@ pub struct DriverCounts {
     pub stereo: u64,
     /// Events whose stamp went backwards (not published).
     pub out_of_order: u64,
+    /// Events of a live source stamped before sensor time 0 (not published).
+    pub before_epoch: u64,
 }
 
 /// One robot's sensors on the bus (see the module documentation).
@@ -48,7 +50,11 @@ pub struct DriverNode {
     held: Option<SensorEvent>,
     /// The source's stamp of sensor time 0 (its first event's), once known.
     time_offset_ns: Option<u64>,
-    last_stamp_ns: u64,
+    /// Last published stamp per event kind (IMU, wheel odometry, stereo): each device's stream
+    /// must not go back in time. A live source's devices deliver independently (a wheel sample
+    /// stamped in the middle of its SYNC interval arrives after IMU samples stamped later), and
+    /// every consumer orders by stamp itself (the bus inbox merges by stamp).
+    last_stamp_ns: [u64; 3],
     finished: bool,
     imu_sequence: u64,
     wheel_sequence: u64,
@@ -75,7 +81,7 @@ impl DriverNode {
             calibration,
             held: None,
             time_offset_ns: None,
-            last_stamp_ns: 0,
+            last_stamp_ns: [0; 3],
             finished: false,
             imu_sequence: 0,
             wheel_sequence: 0,
@@ -91,6 +97,30 @@ impl DriverNode {
     /// The source's stamp of sensor time 0; `None` before the first event was read.
     pub fn time_offset_ns(&self) -> Option<u64> {
         self.time_offset_ns
+    }
+
+    /// Sensor time 0 of a live source, on its clock (`CLOCK_MONOTONIC`): the process runner's
+    /// epoch, shared with every process of the robot (and, in a HIL run, with the cameras).
+    /// Without it a live source's first event would define sensor time 0.
+    pub fn set_live_epoch(&mut self, epoch_ns: u64) {
+        if self.source.is_live() {
+            self.time_offset_ns = Some(epoch_ns);
+        }
+    }
+
+    /// The devices of a live source (`None` for a replay or the simulator).
+    pub fn device_health(&self) -> Option<hal::sensor::DeviceHealth> {
+        self.source.device_health()
+    }
+
+    /// A live source's device changes in sensor time (seconds), oldest first.
+    pub fn device_log(&self) -> Vec<(f64, String)> {
+        let offset = self.time_offset_ns.unwrap_or(0);
+        self.source
+            .device_log()
+            .into_iter()
+            .map(|(stamp_ns, line)| ((stamp_ns as i128 - offset as i128) as f64 * 1e-9, line))
+            .collect()
     }
 
     pub fn counts(&self) -> DriverCounts {
@@ -116,7 +146,8 @@ impl DriverNode {
             return Ok(None);
         }
         let Some(event) = self.source.next_event().map_err(|e| failed(e.to_string()))? else {
-            self.finished = true;
+            // A live source has nothing due yet; it ends only with the end stamp.
+            self.finished = !self.source.is_live();
             return Ok(None);
         };
         self.time_offset_ns.get_or_insert(event.stamp_ns());
@@ -128,12 +159,25 @@ impl DriverNode {
     }
 
     fn publish_event(&mut self, event: &SensorEvent, out: &mut dyn Outbox) -> Result<(), NodeError> {
-        let stamp_ns = self.event_stamp_ns(event);
-        if stamp_ns < self.last_stamp_ns {
-            self.counts.out_of_order += 1;
+        if self.time_offset_ns.is_some_and(|offset| event.stamp_ns() < offset) {
+            self.counts.before_epoch += 1;
             return Ok(());
         }
-        self.last_stamp_ns = stamp_ns;
+        let stamp_ns = self.event_stamp_ns(event);
+        let last_stamp_ns = &mut self.last_stamp_ns[kind_index(event)];
+        if stamp_ns < *last_stamp_ns {
+            self.counts.out_of_order += 1;
+            if self.counts.out_of_order <= 5 {
+                eprintln!(
+                    "driver: {} sample stamped {:.6} s after one at {:.6} s: not published",
+                    event_kind(event),
+                    stamp_ns as f64 * 1e-9,
+                    *last_stamp_ns as f64 * 1e-9
+                );
+            }
+            return Ok(());
+        }
+        *last_stamp_ns = stamp_ns;
         match event {
             SensorEvent::Imu(sample) => {
                 let message = imu_message(&ImuSample { stamp_ns, ..*sample }, self.imu_sequence);
@@ -165,6 +209,22 @@ impl DriverNode {
                 Ok(())
             }
         }
+    }
+}
+
+fn kind_index(event: &SensorEvent) -> usize {
+    match event {
+        SensorEvent::Imu(_) => 0,
+        SensorEvent::WheelOdom(_) => 1,
+        SensorEvent::Stereo(_) => 2,
+    }
+}
+
+fn event_kind(event: &SensorEvent) -> &'static str {
+    match event {
+        SensorEvent::Imu(_) => "IMU",
+        SensorEvent::WheelOdom(_) => "wheel odometry",
+        SensorEvent::Stereo(_) => "stereo",
     }
 }
 

@@ -29,6 +29,13 @@
 //! (`imu_lost`, `restart_imu_lost`), and the filter propagates over the gap with the held sample
 //! and an inflated covariance ([`GAP_SPEED_MPS`], [`GAP_YAW_RATE_RADPS`]). Not restored: the VO
 //! results waiting for their due time and the standstill detector's window.
+//!
+//! # Device outages
+//! A live IMU can go away (an unplugged line, a line full of garbage): the driver then publishes
+//! nothing, and the first sample
+//! after a stamp jump beyond [`IMU_STREAM_GAP_NS`] grows the covariance by the same bounds over
+//! the outage (`imu_stream_gaps`, `imu_gap_max_ns`). Captures during the outage are not cloned
+//! (`clones_without_imu`): a clone would be the held sample extrapolated, confidently wrong.
 
 pub mod checkpoint;
 pub mod odometry_chain;
@@ -61,6 +68,9 @@ pub const GAP_SPEED_MPS: f64 = 0.5;
 pub const GAP_YAW_RATE_RADPS: f64 = 0.3;
 /// Default checkpoint period (IMU time).
 pub const CHECKPOINT_PERIOD_NS: u64 = 250_000_000;
+/// A jump in the IMU's stamps longer than this (10 samples at 200 Hz) is a device outage: the
+/// covariance grows as over a restart's gap.
+pub const IMU_STREAM_GAP_NS: u64 = 50_000_000;
 
 /// The filter node's configuration (the filter part of [`VioOptions`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -104,11 +114,17 @@ pub struct FilterNodeSummary {
     pub imu_received: u64,
     /// Sum of the IMU sequence gaps.
     pub imu_lost: u64,
+    /// Jumps in the IMU's stamps beyond [`IMU_STREAM_GAP_NS`] (the device was away), and the
+    /// longest.
+    pub imu_stream_gaps: u64,
+    pub imu_gap_max_ns: u64,
     /// Samples out of order (sequence not increasing) or with non-finite values.
     pub imu_rejected: u64,
     pub initialized_ns: Option<u64>,
     pub clones: u64,
     pub clone_errors: u64,
+    /// Captures during an IMU outage, not cloned.
+    pub clones_without_imu: u64,
     pub vo_received: u64,
     /// Applied on arrival because the IMU stream had already passed their due time.
     pub vo_late: u64,
@@ -293,8 +309,13 @@ impl FilterNode {
     /// The first sample after a resume that the history did not deliver: the motion over the
     /// gap is unknown beyond the held sample, so the covariance grows by the rover's bounds.
     fn inflate_for_gap(&mut self, stamp_ns: u64) {
+        let gap_ns = self.filter.snapshot().map_or(0, |s| stamp_ns.saturating_sub(s.stamp_ns));
+        self.inflate_covariance(gap_ns as f64 * 1e-9);
+    }
+
+    /// Grows the covariance for `gap_s` of motion the IMU did not see, by the rover's bounds.
+    fn inflate_covariance(&mut self, gap_s: f64) {
         let Some(mut snapshot) = self.filter.snapshot() else { return };
-        let gap_s = stamp_ns.saturating_sub(snapshot.stamp_ns) as f64 * 1e-9;
         let position = (GAP_SPEED_MPS * gap_s).powi(2);
         let velocity = GAP_SPEED_MPS.powi(2);
         let yaw = (GAP_YAW_RATE_RADPS * gap_s).powi(2);
@@ -397,6 +418,17 @@ impl FilterNode {
         if !finite || self.last_imu_ns.is_some_and(|last| message.stamp_ns < last) {
             self.summary.imu_rejected += 1;
             return Ok(());
+        }
+        if self.filter.is_initialized()
+            && let Some(last_ns) = self.last_imu_ns
+            && message.stamp_ns.saturating_sub(last_ns) > IMU_STREAM_GAP_NS
+        {
+            // The device was away (an unplugged IMU, a line that carried only garbage): the
+            // filter went on with the held sample, and what the IMU did not see is unknown.
+            let gap_ns = message.stamp_ns - last_ns;
+            self.summary.imu_stream_gaps += 1;
+            self.summary.imu_gap_max_ns = self.summary.imu_gap_max_ns.max(gap_ns);
+            self.inflate_covariance(gap_ns as f64 * 1e-9);
         }
         let sample = ImuSample {
             stamp_ns: message.stamp_ns,
@@ -563,6 +595,14 @@ impl FilterNode {
 
     fn on_capture(&mut self, capture_ns: u64) {
         if !self.filter.is_initialized() {
+            return;
+        }
+        if self.last_imu_ns.is_some_and(|last| capture_ns.saturating_sub(last) > IMU_STREAM_GAP_NS) {
+            // The IMU is away: a clone would be the held sample extrapolated over the outage, a
+            // pose with a confident covariance and an unknown error, and the odometry measured
+            // against it would be refused (or worse, pull the state). The capture gets none; its
+            // odometry result finds no clone and is skipped.
+            self.summary.clones_without_imu += 1;
             return;
         }
         match self.filter.clone_at(capture_ns) {
@@ -870,5 +910,33 @@ mod tests {
         assert_eq!(other_run.resume(78).unwrap(), None);
         assert!(!other_run.filter().is_initialized());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn an_imu_outage_is_counted_and_grows_the_covariance_over_it() {
+        let mut options = FilterNodeOptions::from_vio(&VioOptions::default());
+        options.checkpoint_path = None;
+        let mut node = FilterNode::new(options);
+        let g = node.options.filter.gravity_mps2;
+        let mut out = LastState::default();
+        feed(&mut node, 0..400, &mut out);
+        let sigma_before = out.0.unwrap().pose_covariance[0].sqrt();
+        // The device is away for 2 s (samples 400..800 never arrive), the driver numbers what it
+        // publishes contiguously: only the stamps jump.
+        let mut back = imu(800, g);
+        back.sequence = 400;
+        node.on_message(Message::Imu(&back), &mut out).unwrap();
+        let s = node.summary();
+        assert_eq!((s.imu_stream_gaps, s.imu_gap_max_ns, s.imu_lost), (1, 400 * PERIOD_NS + PERIOD_NS, 0));
+        let sigma_after = out.0.unwrap().pose_covariance[0].sqrt();
+        let gap_s = (401 * PERIOD_NS) as f64 * 1e-9;
+        assert!(sigma_after >= GAP_SPEED_MPS * gap_s, "σx {sigma_before} → {sigma_after} over a {gap_s} s outage");
+        // Ten samples' silence (the gap limit) is not an outage.
+        for k in 401..405 {
+            let mut sample = imu(800 + (k - 400) * 10, g);
+            sample.sequence = k;
+            node.on_message(Message::Imu(&sample), &mut out).unwrap();
+        }
+        assert_eq!(node.summary().imu_stream_gaps, 1);
     }
 }

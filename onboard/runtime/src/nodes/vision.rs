@@ -9,7 +9,8 @@
 //!
 //! The odometry's prior is the filter's keyframe→current motion: the filter poses at the two
 //! capture stamps, chained across [`Message::FrameSwitch`] into one frame (a small ring of recent
-//! filter states). The state of a capture usually arrives just after the image (the filter
+//! filter states; a capture between two states is interpolated, as real cameras and IMUs never
+//! share stamps). The state of a capture usually arrives just after the image (the filter
 //! publishes it after the IMU sample of that stamp), so the odometry of a pair waits for the first
 //! filter state at or after its capture, for the next pair, or for
 //! [`VisionNodeOptions::prior_wait_ns`] of sensor time, whichever comes first; without the state
@@ -50,6 +51,10 @@ const STATES_KEPT: usize = 64;
 /// Filter poses at capture stamps kept for the keyframe end of the prior (as the pipeline: more
 /// than 5 keyframes' worth).
 const CAPTURE_POSES_KEPT: usize = 64;
+/// A capture between two filter states at most this far apart takes their interpolation (as the
+/// mapper's depth integration does). Real devices' stamps never coincide: a camera's capture
+/// falls between two IMU samples, so an exact lookup would leave the odometry without a prior.
+const STATE_INTERPOLATION_GAP_NS: u64 = 20_000_000;
 
 /// The vision node's configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -315,7 +320,7 @@ impl VisionNode {
             markers.process(pair, &self.calibration, out)?;
         }
 
-        let state_known = self.states.exact(header.stamp_ns).is_some();
+        let state_known = self.states.lookup(header.stamp_ns, STATE_INTERPOLATION_GAP_NS).is_some();
         let state_passed = self.latest.is_some_and(|l| l.stamp_ns > header.stamp_ns);
         if !self.options.odometry_follows_filter || state_known || state_passed {
             let Some(prior) = self.odometry_prior(header.stamp_ns) else { return Ok(()) };
@@ -425,8 +430,11 @@ impl VisionNode {
     /// without one); the outer `None` when the odometry must not run yet (the filter has not
     /// started).
     fn odometry_prior(&mut self, capture_ns: u64) -> Option<Option<Isometry3<f64>>> {
-        let t_first_body =
-            if self.options.odometry_follows_filter { self.states.exact(capture_ns).map(|s| s.pose) } else { None };
+        let t_first_body = if self.options.odometry_follows_filter {
+            self.states.lookup(capture_ns, STATE_INTERPOLATION_GAP_NS).map(|s| s.pose)
+        } else {
+            None
+        };
         if t_first_body.is_none() && self.options.odometry_follows_filter {
             if !self.latest.is_some_and(|l| l.running) {
                 self.summary.frames_before_init += 1;

@@ -20,6 +20,7 @@ use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
+use hal::can::CanLink;
 use hal::link::Link;
 use hal::serial::SerialLink;
 use hal::udp::UdpLink;
@@ -37,6 +38,7 @@ use crate::nodes::vision::VisionNode;
 use crate::nodes::{Message, Node, Outbox};
 use crate::sensors::{SensorSetup, SourceProvider, sensor_setup};
 use crate::stack::{self, protocol_robot_id};
+use crate::task::histogram::LogHistogram;
 use crate::task::rt::{self, RtReport};
 use crate::task::{FixedRateTask, RunEnd};
 
@@ -66,14 +68,50 @@ impl Hosted {
         }
     }
 
-    fn release(&mut self, now_ns: u64, inbox: &mut BusInbox, outbox: &mut BusOutbox) -> Result<(), ProcessError> {
+    fn release(
+        &mut self,
+        now_ns: u64,
+        inbox: &mut BusInbox,
+        outbox: &mut BusOutbox,
+        latency: &mut SensorLatency,
+    ) -> Result<(), ProcessError> {
         let node = self.node();
-        inbox.drain(&mut |message| node.on_message(message, outbox))?;
+        inbox.drain(&mut |message| {
+            latency.record(&message);
+            node.on_message(message, outbox)
+        })?;
         node.on_tick(now_ns, outbox)?;
         if let Hosted::Comms(comms, links) = self {
             links.pump(comms, now_ns)?;
         }
         Ok(())
+    }
+}
+
+/// How old the sensor samples are when the process takes them from the bus: sensor time at the
+/// drain minus the sample's stamp (the device's capture time), the whole path device → driver →
+/// bus → this process. Measured where the clock is the wall clock at the recorded pace (not for a
+/// replay at another speed).
+struct SensorLatency {
+    epoch_ns: Option<u64>,
+    imu: LogHistogram,
+    wheel: LogHistogram,
+}
+
+impl SensorLatency {
+    fn record(&mut self, message: &Message<'_>) {
+        let Some(epoch_ns) = self.epoch_ns else { return };
+        let (histogram, stamp_ns) = match message {
+            Message::Imu(m) => (&mut self.imu, m.stamp_ns),
+            Message::WheelOdom(m) => (&mut self.wheel, m.stamp_ns),
+            _ => return,
+        };
+        histogram.record(monotonic_ns().saturating_sub(epoch_ns).saturating_sub(stamp_ns));
+    }
+
+    fn json(&self) -> Value {
+        let quantiles = |h: &LogHistogram| json!({"samples": h.count(), "p50_ns": h.quantile(0.5), "p99_ns": h.quantile(0.99), "max_ns": h.max()});
+        json!({"imu": quantiles(&self.imu), "wheel_odom": quantiles(&self.wheel)})
     }
 }
 
@@ -104,6 +142,17 @@ fn comms_node(config: &RoverConfig) -> Result<(CommsNode, LinkDriver), ProcessEr
             }
         }
         LinkKind::None => {}
+        LinkKind::Can => {
+            let text = link.can_interface.as_deref().unwrap_or_default();
+            let interface: hal::can::interface::CanInterface =
+                text.parse().map_err(|e| ProcessError::Setup(format!("link.can_interface {text:?}: {e}")))?;
+            let bus = interface.open()?;
+            let can = CanLink::new(bus, protocol::NodeId(protocol_robot_id(config.robot.id) as u8));
+            // A CAN bus is a broadcast medium too.
+            let peer_ids = link.peers.iter().map(|p| RobotId(protocol_robot_id(p.robot_id) as u8)).collect();
+            links.push(LinkConfig::team(TEAM_LINK, "team CAN", can.framing(), link.bandwidth_bytes_per_s, peer_ids));
+            driver.add(TEAM_LINK, Box::new(can));
+        }
         LinkKind::Serial => {
             let device = link.serial_device.as_deref().unwrap_or_default();
             let serial = SerialLink::open(device, link.serial_baud)?;
@@ -214,7 +263,15 @@ pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvide
     std::fs::write(ready.join(kind.name()), b"").map_err(io_error(&ready))?;
     let setup_s = setup_start.elapsed().as_secs_f64();
     let Some(epoch_ns) = wait_for_epoch(&stop)? else { return Ok(()) };
+    if let Hosted::Driver(driver) = &mut hosted {
+        driver.set_live_epoch(epoch_ns);
+    }
     let speed = if config.driver.kind == DriverKind::Replay { config.driver.replay_speed } else { 1.0 };
+    let mut latency = SensorLatency {
+        epoch_ns: (speed == 1.0).then_some(epoch_ns),
+        imu: LogHistogram::new(),
+        wheel: LogHistogram::new(),
+    };
     let sensor_ns = move |monotonic: u64| (monotonic.saturating_sub(epoch_ns) as f64 * speed) as u64;
     if let Hosted::Filter(filter) = &mut hosted {
         match filter.resume(epoch_ns) {
@@ -242,10 +299,15 @@ pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvide
     let mut stats_failed = 0u64;
     loop {
         let end = task.run_for_ns(STATS_PERIOD_NS, |release| {
-            hosted.release(sensor_ns(release.start_ns), &mut inbox, &mut outbox)
+            hosted.release(sensor_ns(release.start_ns), &mut inbox, &mut outbox, &mut latency)
         })?;
         // Telemetry is best effort: a full buffer never stops the task.
         let mut stats = task.stats();
+        if let Hosted::Driver(driver) = &hosted
+            && let Some(health) = driver.device_health()
+        {
+            stats.devices = device_bits(&health);
+        }
         if let Some(peak) = inbox.take_queue_peak() {
             stats.queue_topic = u32::from(peak.topic.code());
             stats.queue_depth_max = peak.depth;
@@ -259,7 +321,7 @@ pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvide
         }
     }
     let now_ns = sensor_ns(monotonic_ns());
-    let extra = finish(&mut hosted, &dir, now_ns, &mut inbox, &mut outbox)?;
+    let extra = finish(&mut hosted, &dir, now_ns, &mut inbox, &mut outbox, &mut latency)?;
     let stats = task.stats();
     let mut topics = serde_json::Map::new();
     for topic in inbox.topics() {
@@ -296,10 +358,31 @@ pub fn node_main(kind: NodeKind, config_path: &Path, sources: &dyn SourceProvide
             "stats_publish_failed": stats_failed,
             "realtime": rt_json(&rt_report),
             "topics": Value::Object(topics),
+            "sensor_latency": latency.json(),
             "node": extra,
         }),
     )?;
     Ok(())
+}
+
+/// The driver's devices as `TaskStatsMsg::devices` bits.
+fn device_bits(health: &hal::sensor::DeviceHealth) -> u32 {
+    let mut bits = msgs::TaskStatsMsg::DEVICES_REPORTED;
+    for (status, bit) in [
+        (&health.imu, msgs::TaskStatsMsg::DEVICE_IMU),
+        (&health.wheels, msgs::TaskStatsMsg::DEVICE_WHEELS),
+        (&health.head, msgs::TaskStatsMsg::DEVICE_HEAD),
+    ] {
+        if status.available {
+            bits |= bit;
+        }
+    }
+    bits
+}
+
+fn device_health_json(health: &hal::sensor::DeviceHealth) -> Value {
+    let device = |d: &hal::sensor::DeviceStatus| json!({"available": d.available, "samples": d.samples, "dropouts": d.dropouts, "errors": d.errors});
+    json!({"imu": device(&health.imu), "wheels": device(&health.wheels), "head": device(&health.head)})
 }
 
 fn rt_json(report: &RtReport) -> Value {
@@ -318,11 +401,15 @@ fn finish(
     now_ns: u64,
     inbox: &mut BusInbox,
     outbox: &mut BusOutbox,
+    latency: &mut SensorLatency,
 ) -> Result<Value, ProcessError> {
     match hosted {
         Hosted::Driver(driver) => {
             let c = driver.counts();
             Ok(json!({"imu": c.imu, "wheel": c.wheel, "stereo": c.stereo, "out_of_order": c.out_of_order,
+                      "before_epoch": c.before_epoch, "devices": driver.device_health().map(|h| device_health_json(&h)),
+                      "device_log": driver.device_log().iter()
+                          .map(|(t_s, line)| json!({"t_s": t_s, "event": line})).collect::<Vec<_>>(),
                       "finished": driver.finished(), "time_offset_ns": driver.time_offset_ns()}))
         }
         Hosted::Vision(vision) => {
@@ -330,13 +417,17 @@ fn finish(
             Ok(json!({"frames": s.frames, "vo_deltas": s.vo_deltas, "keyframes": s.keyframes,
                       "disparity_published": s.disparity_published, "bad_stereo": s.bad_stereo,
                       "markers_detected": s.markers.tags_detected, "markers_published": s.markers.published,
-                      "markers_gated": s.markers.gated}))
+                      "markers_gated": s.markers.gated, "priors_used": s.priors_used,
+                      "prior_state_missing": s.prior_state_missing}))
         }
         Hosted::Filter(filter) => {
             let s = filter.summary();
             let summary = json!({
                 "imu_received": s.imu_received,
                 "imu_lost": s.imu_lost,
+                "imu_stream_gaps": s.imu_stream_gaps,
+                "clones_without_imu": s.clones_without_imu,
+                "imu_gap_max_ns": s.imu_gap_max_ns,
                 "imu_rejected": s.imu_rejected,
                 "initialized_ns": s.initialized_ns,
                 "vo_received": s.vo_received,
@@ -362,7 +453,7 @@ fn finish(
         }
         Hosted::Mapper(_) => {
             // What arrived since the last release still belongs to the map.
-            hosted.release(now_ns, inbox, outbox)?;
+            hosted.release(now_ns, inbox, outbox, latency)?;
             let Hosted::Mapper(mapper) = hosted else { return Ok(Value::Null) };
             let estimate = mapper.online_trajectory().to_vec();
             let written = mapper.write_outputs(dir).map_err(|e| ProcessError::Output(e.to_string()))?;

@@ -23,7 +23,7 @@
 //! where the release, overrun and skip logic is checked without any timing assumption.
 
 mod clock;
-mod histogram;
+pub mod histogram;
 pub mod rt;
 pub mod usage;
 
@@ -285,7 +285,7 @@ impl<C: Clock> FixedRateTask<C> {
             queue_topic: 0,
             queue_depth_max: 0,
             queue_capacity: 0,
-            reserved: 0,
+            devices: 0,
         }
     }
 }

@@ -24,8 +24,8 @@ use msgs::{FilterStateMsg, ProcessKind, TaskStatsMsg};
 use protocol::delivery::EndpointStats;
 use protocol::message::state::{MAX_CLASSES, MAX_LINKS, MAX_QUEUES, MAX_TASKS};
 use protocol::message::{
-    ClassBytes, FilterHealth, FilterStatus, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage, TaskStats,
-    Telemetry,
+    ClassBytes, FilterHealth, FilterStatus, Label, LinkStats, Mode, PoseEstimate, QueueStats, ResourceUsage,
+    SensorAvailability, TaskStats, Telemetry,
 };
 use protocol::{AnyMessage, Cov6, Pose3, RobotId, SubmapId};
 
@@ -203,6 +203,17 @@ impl GroundFeed {
         })
     }
 
+    /// The driver's last report of its devices, if it reads devices.
+    fn sensors(&self) -> Option<SensorAvailability> {
+        let driver = ProcessKind::Driver as u32;
+        let bits = self.tasks.iter().find(|((process, _), _)| *process == driver).map(|(_, s)| s.devices)?;
+        (bits & TaskStatsMsg::DEVICES_REPORTED != 0).then_some(SensorAvailability {
+            imu: bits & TaskStatsMsg::DEVICE_IMU != 0,
+            wheels: bits & TaskStatsMsg::DEVICE_WHEELS != 0,
+            head: bits & TaskStatsMsg::DEVICE_HEAD != 0,
+        })
+    }
+
     pub fn telemetry(
         &mut self,
         robot: RobotId,
@@ -231,6 +242,7 @@ impl GroundFeed {
             links: Default::default(),
             auth_rejections: saturate_u32(auth_rejections),
             classes: Default::default(),
+            sensors: self.sensors(),
         };
         for key in AnyMessage::KEYS.iter().take(MAX_CLASSES) {
             let Some(traffic) = AnyMessage::name_of(*key).and_then(|name| sent_by_class.get(name)) else { continue };
