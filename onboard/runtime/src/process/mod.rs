@@ -23,10 +23,11 @@
 //! start, removed when it is reaped): the mission's fault injection uses it.
 //!
 //! # Signals
-//! SIGTERM and SIGINT are blocked in the process and taken by a thread in `sigwait`
-//! ([`termination_flag`]), which sets the task's stop flag: no unsafe signal handler. Children
-//! inherit the blocked mask across `exec`, so a signal that arrives before a child's own waiter
-//! runs stays pending and is not lost.
+//! SIGTERM and SIGINT set the task's stop flag from a handler (`signal_hook::flag`, no unsafe
+//! code of ours; [`termination_flag`]), so whichever thread takes the signal, the process ends
+//! its release and writes its files. (Blocking the signals and waiting on one thread, as before,
+//! killed the devices driver: `serialport` waits in `ppoll` with an empty mask, so its reading
+//! thread took SIGTERM with the default action; `sil/tests/hil.rs` asserts every exit is 0.)
 
 pub mod node_main;
 pub mod supervisor;
@@ -37,7 +38,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use msgs::ProcessKind;
 use nalgebra::Isometry3;
-use nix::sys::signal::{SigSet, Signal};
 use nix::time::{ClockId, clock_gettime};
 
 use crate::config::{ConfigError, RatesConfig, TaskRate};
@@ -65,7 +65,7 @@ pub enum ProcessError {
     #[error("{EPOCH_ENV}={value:?} is not a nanosecond count")]
     Epoch { value: String },
     #[error("signals: {0}")]
-    Signal(nix::Error),
+    Signal(std::io::Error),
     #[error("{}: {source}", path.display())]
     Io { path: PathBuf, source: std::io::Error },
     #[error("bus: {0}")]
@@ -177,25 +177,19 @@ pub fn wait_for_epoch(stop: &AtomicBool) -> Result<Option<u64>, ProcessError> {
     Ok(None)
 }
 
-/// Blocks SIGTERM and SIGINT in the calling thread and starts a thread that waits for them and
-/// sets the returned flag. Call it first in `main`, before any other thread exists, so that every
-/// thread inherits the mask (a thread with the signals unblocked would take them with the
-/// default action: death without outputs).
+/// A flag that SIGTERM and SIGINT set (from a signal handler, `signal_hook::flag`): the process
+/// finishes its current release, writes its files and exits 0. Call it first in `main`.
+///
+/// Blocking the signals and waiting for them on one thread is not enough here: `serialport`
+/// waits for data in `ppoll` with an *empty* signal mask, so a thread reading a serial line (the
+/// IMU, an SLCAN adapter, a serial radio) would take a blocked-elsewhere SIGTERM with the default
+/// action, death without outputs. A handler makes every thread safe; a read it interrupts returns
+/// `EINTR`, which the device threads treat as a lost line, at shutdown only.
 pub fn termination_flag() -> Result<Arc<AtomicBool>, ProcessError> {
-    let mut set = SigSet::empty();
-    set.add(Signal::SIGTERM);
-    set.add(Signal::SIGINT);
-    set.thread_block().map_err(ProcessError::Signal)?;
     let flag = Arc::new(AtomicBool::new(false));
-    let setter = Arc::clone(&flag);
-    std::thread::Builder::new()
-        .name("sigwait".into())
-        .spawn(move || {
-            // Only SIGTERM/SIGINT are waited for; either ends the process gracefully.
-            while set.wait().is_err() {}
-            setter.store(true, Ordering::Relaxed);
-        })
-        .map_err(|e| ProcessError::Setup(format!("starting the signal thread: {e}")))?;
+    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register(signal, Arc::clone(&flag)).map_err(ProcessError::Signal)?;
+    }
     Ok(flag)
 }
 
