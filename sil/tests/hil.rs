@@ -24,6 +24,24 @@ fn count(log: &str, needle: &str) -> usize {
     log.lines().filter(|l| l.contains(needle)).count()
 }
 
+/// Seconds within `[0, end_s)` that any device was logged unavailable, from a driver's device log.
+fn unavailable_time(driver: &Value, end_s: f64) -> f64 {
+    let mut down_since: std::collections::BTreeMap<String, f64> = std::collections::BTreeMap::new();
+    let mut total = 0.0;
+    for entry in driver["device_log"].as_array().unwrap() {
+        let (t_s, event) = (entry["t_s"].as_f64().unwrap(), entry["event"].as_str().unwrap());
+        let device = event.split_whitespace().next().unwrap_or_default().to_owned();
+        if event.contains(" unavailable") && t_s < end_s {
+            down_since.entry(device).or_insert(t_s);
+        } else if event.ends_with(" available")
+            && let Some(since) = down_since.remove(&device)
+        {
+            total += t_s.min(end_s) - since;
+        }
+    }
+    total + down_since.values().map(|since| (end_s - since).max(0.0)).sum::<f64>()
+}
+
 #[test]
 fn the_firmware_runs_on_emulated_devices_and_survives_every_bus_fault() {
     let out = std::env::temp_dir().join(format!("onboard-hil-{}", std::process::id()));
@@ -83,7 +101,12 @@ fn the_firmware_runs_on_emulated_devices_and_survives_every_bus_fault() {
     let wheel = control["wheel"].as_u64().unwrap() as f64;
     assert!((wheel - 50.0 * DURATION_S).abs() < 25.0, "{control}");
     assert_eq!(control["devices"]["imu"]["errors"], 0);
-    assert_eq!(control["devices"]["wheels"]["dropouts"], 0, "{control}");
+    // No outage of the control robot's devices beyond a starved moment: a loaded 2-core machine
+    // (the test suite, the other robot, the emulators) can hold a SYNC cycle past the 300 ms
+    // limit, but nothing stays unavailable.
+    let unavailable_s = unavailable_time(&control, 40.0);
+    println!("control robot: devices unavailable for {unavailable_s:.3} s in total");
+    assert!(unavailable_s < 1.0, "{control}");
     assert_eq!(filter(0)["imu_stream_gaps"], 0);
 
     // The faulty robot, fault by fault.
@@ -118,9 +141,9 @@ fn the_firmware_runs_on_emulated_devices_and_survives_every_bus_fault() {
     let back_s = logged("IMU available", 12.0, 16.0).expect("the IMU did not come back");
     println!("IMU: lost after {:.3} s, back {:.3} s after the replug", lost_s - 10.0, back_s - 12.0);
     assert!(back_s - 12.0 < 1.0);
-    // The silent drive (21–23 s): the SYNC cycles stop completing at once (wheels unavailable
-    // after 3 periods), its heartbeat times out after 300 ms (the node is lost), it boots again
-    // and the wheels are back.
+    // The silent drive (21–23 s): the SYNC cycles stop completing and its heartbeat times out
+    // (both after 300 ms: the wheels are unavailable, the node is lost), it boots again and the
+    // wheels are back.
     let lost_s = logged("wheels unavailable", 21.0, 23.0).expect("the silent drive was not reported");
     let node_lost_s = logged("NodeLost", 21.0, 23.0).expect("the drive's heartbeat did not time out");
     let back_s = logged("wheels available", 23.0, 26.0).expect("the wheels did not come back");
@@ -130,16 +153,42 @@ fn the_firmware_runs_on_emulated_devices_and_survives_every_bus_fault() {
         node_lost_s - 21.0,
         back_s - 23.0
     );
-    assert!(lost_s - 21.0 < 0.15);
+    assert!((0.25..0.6).contains(&(lost_s - 21.0)));
     assert!((0.25..0.6).contains(&(node_lost_s - 21.0)));
     assert!(back_s - 23.0 < 0.5);
-    // Lost SYNC (26–28 s): the wheels report no cycle within 0.15 s and are back after it.
+    // Lost SYNC (26–28 s): the wheels report no cycle after 0.3 s and are back after it.
     let lost_s = logged("wheels unavailable", 26.0, 28.0).expect("the lost SYNC was not reported");
     let back_s = logged("wheels available", 28.0, 31.0).expect("the wheels did not come back after SYNC");
     println!("SYNC: wheels lost after {:.3} s, back {:.3} s after SYNC returned", lost_s - 26.0, back_s - 28.0);
-    assert!(lost_s - 26.0 < 0.15 && back_s - 28.0 < 0.2);
+    assert!((0.25..0.6).contains(&(lost_s - 26.0)) && back_s - 28.0 < 0.2);
     // The babbling node (31–33 s) costs no device.
     assert!(logged("unavailable", 31.0, 33.0).is_none(), "a device was lost to the babbling node");
+
+    // What the ground saw: the faulty robot's telemetry (decoded from the recorded ground link)
+    // says its IMU was unavailable during the unplug and its wheels during the silent drive, and
+    // both were back afterwards.
+    let feed = hal::feedlog::read_feed_log(out.join("ground_feed.log")).unwrap();
+    let sensors: Vec<(f64, protocol::message::SensorAvailability)> = feed
+        .records
+        .iter()
+        .filter_map(|r| match protocol::decode(&r.packet).ok()?.message {
+            protocol::AnyMessage::Telemetry(t) if t.robot == protocol::RobotId(2) => {
+                Some((t.stamp_ns as f64 * 1e-9, t.sensors?))
+            }
+            _ => None,
+        })
+        .collect();
+    println!(
+        "robot 2's telemetry, devices: {:?}",
+        sensors.iter().map(|(t, s)| (format!("{t:.1}"), s.imu, s.wheels, s.head)).collect::<Vec<_>>()
+    );
+    let reported = |from: f64, to: f64, f: &dyn Fn(&protocol::message::SensorAvailability) -> bool| {
+        sensors.iter().any(|(t, s)| *t >= from && *t < to && f(s))
+    };
+    assert!(reported(10.0, 13.5, &|s| !s.imu), "no telemetry showed the unplugged IMU");
+    assert!(reported(13.5, 21.0, &|s| s.imu), "no telemetry showed the IMU back");
+    assert!(reported(21.0, 24.5, &|s| !s.wheels), "no telemetry showed the silent drive");
+    assert!(reported(24.5, 26.0, &|s| s.wheels), "no telemetry showed the wheels back");
 
     // Unplugged IMU: logged, counted, the filter bridged the outage and the IMU came back.
     assert!(count(&text, "IMU unavailable") >= 1);
