@@ -171,12 +171,24 @@ impl<P: serialport::SerialPort> SerialLink<P> {
     }
 }
 
+/// Opens the serial device at `path`, 8 data bits, no parity, one stop bit, no flow control,
+/// writes bounded by `write_timeout`: every serial device of the rover (radio, IMU, SLCAN
+/// adapter) is opened here.
+pub fn open_port(
+    path: &str,
+    baud_rate: u32,
+    write_timeout: Duration,
+) -> std::io::Result<Box<dyn serialport::SerialPort>> {
+    Ok(serialport::new(path, baud_rate).timeout(write_timeout).open()?)
+}
+
 impl SerialLink<Box<dyn serialport::SerialPort>> {
     /// Opens the serial device at `path` (8 data bits, no parity, one stop bit, no flow
     /// control: what serial radios expect).
     pub fn open(path: &str, baud_rate: u32) -> Result<Self, LinkError> {
-        let port = serialport::new(path, baud_rate).timeout(DEFAULT_WRITE_TIMEOUT).open().map_err(|error| {
-            LinkError::Io { context: format!("opening serial port {path} at {baud_rate} baud"), source: error.into() }
+        let port = open_port(path, baud_rate, DEFAULT_WRITE_TIMEOUT).map_err(|source| LinkError::Io {
+            context: format!("opening serial port {path} at {baud_rate} baud"),
+            source,
         })?;
         let set_timeout: SetTimeout<Box<dyn serialport::SerialPort>> = |port, timeout| Ok(port.set_timeout(timeout)?);
         Ok(Self::build(port, path.to_string(), Some(set_timeout), false))

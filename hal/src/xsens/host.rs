@@ -461,8 +461,8 @@ impl XsensImu<Box<dyn serialport::SerialPort>> {
     /// Opens the serial device at `path`, 8N1 without flow control (the MTi's setting; 115 200
     /// baud by default).
     pub fn open(path: &str, baud_rate: u32) -> Result<Self, XsensError> {
-        let port = serialport::new(path, baud_rate).timeout(DEFAULT_WRITE_TIMEOUT).open().map_err(|error| {
-            XsensError::Io { context: format!("opening serial port {path} at {baud_rate} baud"), source: error.into() }
+        let port = crate::serial::open_port(path, baud_rate, DEFAULT_WRITE_TIMEOUT).map_err(|source| {
+            XsensError::Io { context: format!("opening serial port {path} at {baud_rate} baud"), source }
         })?;
         let set_timeout: SetTimeout<Box<dyn serialport::SerialPort>> = |port, timeout| Ok(port.set_timeout(timeout)?);
         Ok(Self::build(port, path.to_string(), Some(set_timeout), false))

@@ -107,6 +107,9 @@ struct Feeds {
     inputs: Arc<Mutex<DeviceInputs>>,
     /// Wheel speeds take effect this long before their sample's stamp.
     wheel_lead_ns: u64,
+    /// The rover's wheels as the firmware is configured to see them ([`devices_config`]), so
+    /// the drives turn as the firmware's odometry expects.
+    kinematics: hal::canopen::SkidSteerKinematics,
 }
 
 /// Faults the harness can inject into a robot's devices while it runs.
@@ -197,7 +200,13 @@ impl DeviceBench {
             // (as early as the stream's order allows), so the drives' encoder counts integrate
             // the motion around the stamp rather than after it.
             let wheel_lead_ns = (0.5e9 / config.rates.wheel_hz.max(1.0)) as u64;
-            let feeds = Feeds { imu: imu_sender, inputs, wheel_lead_ns };
+            let wheels = devices_config(&imu_path, &can_path);
+            let kinematics = hal::canopen::SkidSteerKinematics {
+                wheel_radius_m: wheels.wheel_radius_m,
+                track_width_m: wheels.track_width_m,
+                counts_per_rev: wheels.counts_per_rev,
+            };
+            let feeds = Feeds { imu: imu_sender, inputs, wheel_lead_ns, kinematics };
             threads.push(spawn(
                 format!("hil-pacer-{}", config.robot.id),
                 Box::new(move || pace(device_source, Sink::Devices(feeds), end_ns, &epoch, &stop)),
@@ -290,8 +299,7 @@ fn pace(
                 let _ = feeds.imu.try_send(sample);
             }
             (SensorEvent::WheelOdom(sample), Some(feeds), _) => {
-                let speeds = hal::canopen::SkidSteerKinematics::lru_like()
-                    .wheel_speeds_from_twist(sample.linear_mps.x, sample.angular_radps.z);
+                let speeds = feeds.kinematics.wheel_speeds_from_twist(sample.linear_mps.x, sample.angular_radps.z);
                 feeds.inputs.lock().unwrap_or_else(std::sync::PoisonError::into_inner).wheel_speeds_radps = speeds;
             }
             (SensorEvent::Stereo(info), Some(feeds), _) => {

@@ -341,11 +341,8 @@ impl SlcanBus<Box<dyn serialport::SerialPort>> {
                 rates.join(", ")
             ))
         })?;
-        let port = serialport::new(path, serial_baud).timeout(DEFAULT_WRITE_TIMEOUT).open().map_err(|error| {
-            LinkError::Io {
-                context: format!("opening SLCAN adapter {path} at {serial_baud} baud"),
-                source: error.into(),
-            }
+        let port = crate::serial::open_port(path, serial_baud, DEFAULT_WRITE_TIMEOUT).map_err(|source| {
+            LinkError::Io { context: format!("opening SLCAN adapter {path} at {serial_baud} baud"), source }
         })?;
         Self::connect(port, bitrate)
     }
