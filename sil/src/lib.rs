@@ -10,11 +10,14 @@
 //! - [`team_record`], [`slam_eval`]: a simulated team's filter output recorded through the
 //!   firmware's nodes, and the multi-robot SLAM evaluation on it.
 //! - [`vio_score`]: scoring `onboard vio`'s estimate on a dataset against its ground truth.
+//! - [`obstacles`]: obstacle classification on rendered stereo against the simulator's true
+//!   obstacles (the `sim_obstacles` example and its tests).
 
 pub mod campaign;
 pub mod cli;
 pub mod ground_end;
 pub mod mission;
+pub mod obstacles;
 pub mod relay;
 pub mod sim_source;
 pub mod slam_eval;

@@ -9,7 +9,7 @@ use hal::sensor::StereoCalibration;
 /// Moon the black shadows in craters, ditches and behind rocks are sensor noise, and SGM's paths
 /// agree on some disparity there that both the LR check and a 0 % margin accept: 1.7 % of the
 /// pixels within the classifier's range were off by more than 3 px, and their patches made most
-/// of the false obstacles. Measured with the `sim_obstacles` example (seed 1, 264 viewpoints),
+/// of the false obstacles. Measured with `sil`'s `sim_obstacles` example (seed 1, 264 viewpoints),
 /// without the speckle filter: margin 0 / 10 / 20 % gave blunders 1.71 / 0.43 / 0.27 %, invalid
 /// pixels 6.2 / 8.3 / 9.1 %, cluster precision 70.5 / 80.1 / 91.5 %, rock recall 82.9 / 82.9 /
 /// 80.0 %. With the speckle filter, 10 / 15 / 20 % gave precision 87.0 / 88.7 / 91.1 % and rock
