@@ -271,6 +271,27 @@ pub trait SensorSource {
     fn device_log(&self) -> Vec<(u64, String)> {
         Vec::new()
     }
+
+    /// Sends the pan-tilt head towards `target`. `Ok(false)` when the source has no head it
+    /// can move (a recorded dataset, a fixed camera): the pairs keep the angles they were
+    /// recorded with. Pairs announced after the command carry the angles the head really had.
+    fn command_head(&mut self, target: &HeadTarget) -> Result<bool, SensorError> {
+        let _ = target;
+        Ok(false)
+    }
+}
+
+/// Where a gaze policy wants the pan-tilt head ([`SensorSource::command_head`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeadTarget {
+    /// When the command was given, on the source's clock.
+    pub stamp_ns: u64,
+    /// Pan about the body's z axis (left positive) and tilt about the head's y axis (down
+    /// positive), as [`PanTiltHead::t_body_cam`].
+    pub pan_rad: f64,
+    pub tilt_rad: f64,
+    /// The fastest either joint may move.
+    pub max_rate_radps: f64,
 }
 
 /// One device of a live source, as its driver sees it.
@@ -317,6 +338,10 @@ impl<S: SensorSource + ?Sized> SensorSource for Box<S> {
 
     fn device_log(&self) -> Vec<(u64, String)> {
         (**self).device_log()
+    }
+
+    fn command_head(&mut self, target: &HeadTarget) -> Result<bool, SensorError> {
+        (**self).command_head(target)
     }
 }
 

@@ -233,6 +233,62 @@ impl TeamHeader {
     pub const BROADCAST: u32 = u32::MAX;
 }
 
+/// `control/head`: where the gaze policy wants the pan-tilt head. The driver passes it to the
+/// head (a CANopen RPDO on a rover, the simulator's head model in SIL); the angles the head
+/// actually had at a capture come back in the [`StereoHeader`].
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend, Default)]
+#[repr(C)]
+#[type_name("rover.HeadCommand.v1")]
+pub struct HeadCommandMsg {
+    /// When the policy decided (sensor time).
+    pub stamp_ns: u64,
+    pub sequence: u64,
+    /// Target joint angles: pan about the body's z axis (left positive), tilt about the head's
+    /// y axis (down positive).
+    pub pan_rad: f64,
+    pub tilt_rad: f64,
+    /// The fastest either joint may move to get there.
+    pub max_rate_radps: f64,
+    /// Why: [`HeadCommandMsg::LOOK_AHEAD`], [`HeadCommandMsg::LOOK_DOWN`] or
+    /// [`HeadCommandMsg::SWEEP`].
+    pub mode: u32,
+    pub reserved: u32,
+}
+
+impl HeadCommandMsg {
+    /// Driving: the far look that VO and mapping want.
+    pub const LOOK_AHEAD: u32 = 0;
+    /// Driving: the near look at the ground within stopping distance.
+    pub const LOOK_DOWN: u32 = 1;
+    /// Standing: the pan sweep around the rover.
+    pub const SWEEP: u32 = 2;
+}
+
+/// Hazard cells a [`HazardCellsMsg`] carries at most (the nearest first).
+pub const HAZARD_CELLS_MAX: usize = 960;
+
+/// `vision/hazards`: the hazard cells of the rolling local obstacle map around the robot,
+/// published about once a second for the ground station.
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable, ZeroCopySend)]
+#[repr(C)]
+#[type_name("rover.HazardCells.v1")]
+pub struct HazardCellsMsg {
+    pub stamp_ns: u64,
+    /// The body at `stamp_ns` in the filter's local frame `frame_id`, the frame of the cells.
+    pub t_local_body: Pose,
+    pub frame_id: u32,
+    /// Edge of a cell.
+    pub cell_size_m: f32,
+    /// Lattice index of the cell holding the body: a listed cell `[di, dj]` has its centre at
+    /// `((origin_cell[0] + di + ½)·cell_size_m, (origin_cell[1] + dj + ½)·cell_size_m)` in the
+    /// local frame.
+    pub origin_cell: [i32; 2],
+    /// Valid entries of `cells`; `omitted` hazard cells farther away did not fit.
+    pub count: u32,
+    pub omitted: u32,
+    pub cells: [[i16; 2]; HAZARD_CELLS_MAX],
+}
+
 /// Which process a [`TaskStatsMsg`] comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]

@@ -8,10 +8,12 @@
 use std::sync::Arc;
 
 use hal::sensor::{
-    SensorError, SensorEvent, SensorSource, StereoCalibration, StereoInfo, check_stereo_buffers, no_pending_pair,
+    HeadTarget, SensorError, SensorEvent, SensorSource, StereoCalibration, StereoInfo, check_stereo_buffers,
+    no_pending_pair,
 };
 use nalgebra::Vector3;
 
+use crate::head_servo::HeadServo;
 use crate::imu::ImuSimulator;
 use crate::render::{Quad, Renderer};
 use crate::rng::{self, streams};
@@ -57,6 +59,8 @@ pub struct SimSensorSource {
     stereo_sequence: u64,
     /// The pair announced by `next_event`: rendered only when it is read.
     pending: Option<StereoInfo>,
+    /// The head once a firmware commands it (before: the scenario's script).
+    head: Option<HeadServo>,
 }
 
 /// Ticks between events of a sensor at `rate_hz` on a grid of `tick_ns` (at least one).
@@ -99,6 +103,7 @@ impl SimSensorSource {
             slot: Slot::Imu,
             stereo_sequence: 0,
             pending: None,
+            head: None,
             world,
             robot,
         })
@@ -164,7 +169,10 @@ impl SimSensorSource {
 
     /// Announces the pair of `stamp_ns` (nothing is rendered yet).
     fn announce(&mut self, stamp_ns: u64) -> StereoInfo {
-        let (pan_rad, tilt_rad) = self.world.head_angles(self.robot, stamp_ns);
+        let (pan_rad, tilt_rad) = match &mut self.head {
+            Some(head) => head.angles_at(stamp_ns),
+            None => self.world.head_angles(self.robot, stamp_ns),
+        };
         let camera = self.renderer.camera();
         let info = StereoInfo {
             stamp_ns,
@@ -232,5 +240,20 @@ impl SensorSource for SimSensorSource {
         let info = self.pending.take().ok_or_else(no_pending_pair)?;
         check_stereo_buffers(&info, left, right)?;
         self.render(&info, left, right)
+    }
+
+    /// A rover's head follows the command from its stamp on ([`HeadServo`]); a fixed camera
+    /// (a flyer) has none.
+    fn command_head(&mut self, target: &HeadTarget) -> Result<bool, SensorError> {
+        if let Some(head) = &mut self.head {
+            head.command(*target);
+            return Ok(true);
+        }
+        let Some(limits) = self.world.robots[self.robot].model().head else {
+            return Ok(false);
+        };
+        let start = self.world.head_angles(self.robot, target.stamp_ns);
+        self.head = Some(HeadServo::new(limits, start, target.stamp_ns, *target));
+        Ok(true)
     }
 }

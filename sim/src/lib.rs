@@ -21,6 +21,7 @@ pub mod asl;
 pub mod body;
 pub mod camera;
 pub mod driver;
+pub mod head_servo;
 pub mod imu;
 pub mod lighting;
 pub mod markers;

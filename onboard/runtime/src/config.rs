@@ -17,6 +17,7 @@
 //! | `[rates]` | sensor rates and the processes' fixed-rate tasks |
 //! | `[mapper]` | submap policy, voxels, depth error limit |
 //! | `[markers]` | robot detection: AprilTag detector, uncertainty model and table, the team's tag mountings |
+//! | `[gaze]` | the gaze policy that points the pan-tilt head (`nodes::gaze`) |
 //! | `[link]` | team link (UDP or serial), ground link, command key |
 //! | `[realtime]`, `[recording]` | SCHED_FIFO, CPU, memory locking; bus recording |
 
@@ -57,6 +58,8 @@ pub struct RoverConfig {
     pub mapper: MapperConfig,
     #[serde(default)]
     pub markers: MarkersConfig,
+    #[serde(default)]
+    pub gaze: GazeConfig,
     #[serde(default)]
     pub matching: MatchingConfig,
     #[serde(default)]
@@ -346,6 +349,63 @@ pub enum MarkerModelConfig {
     Online,
     /// The thesis's model: per axis the larger of table and sampling.
     LutOnline,
+}
+
+/// `[gaze]`: the gaze policy in the vision process (see `nodes::gaze` for what each look is
+/// for). Off by default: a dataset's or a fixed camera's pairs cannot be pointed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GazeConfig {
+    pub enabled: bool,
+    pub ahead_tilt_rad: f64,
+    pub down_tilt_rad: f64,
+    pub ahead_s: f64,
+    pub down_s: f64,
+    pub rate_radps: f64,
+    pub sweep_pan_rad: f64,
+    pub sweep_rate_radps: f64,
+    pub moving_mps: f64,
+    pub turning_radps: f64,
+    pub standing_s: f64,
+    pub resend_s: f64,
+}
+
+impl Default for GazeConfig {
+    fn default() -> Self {
+        let o = crate::nodes::gaze::GazeOptions::lru();
+        GazeConfig {
+            enabled: false,
+            ahead_tilt_rad: o.ahead_tilt_rad,
+            down_tilt_rad: o.down_tilt_rad,
+            ahead_s: o.ahead_s,
+            down_s: o.down_s,
+            rate_radps: o.rate_radps,
+            sweep_pan_rad: o.sweep_pan_rad,
+            sweep_rate_radps: o.sweep_rate_radps,
+            moving_mps: o.moving_mps,
+            turning_radps: o.turning_radps,
+            standing_s: o.standing_s,
+            resend_s: o.resend_s,
+        }
+    }
+}
+
+impl GazeConfig {
+    pub fn options(&self) -> crate::nodes::gaze::GazeOptions {
+        crate::nodes::gaze::GazeOptions {
+            ahead_tilt_rad: self.ahead_tilt_rad,
+            down_tilt_rad: self.down_tilt_rad,
+            ahead_s: self.ahead_s,
+            down_s: self.down_s,
+            rate_radps: self.rate_radps,
+            sweep_pan_rad: self.sweep_pan_rad,
+            sweep_rate_radps: self.sweep_rate_radps,
+            moving_mps: self.moving_mps,
+            turning_radps: self.turning_radps,
+            standing_s: self.standing_s,
+            resend_s: self.resend_s,
+        }
+    }
 }
 
 /// `[markers]`: robot detection from the AprilTags on the team's masts (thesis §6.2). A robot with
@@ -768,6 +828,7 @@ impl Default for RoverConfig {
             rates: RatesConfig::default(),
             mapper: MapperConfig::default(),
             markers: MarkersConfig::default(),
+            gaze: GazeConfig::default(),
             matching: MatchingConfig::default(),
             link: LinkConfig::default(),
             realtime: RealtimeConfig::default(),
@@ -936,6 +997,12 @@ impl RoverConfig {
         }
 
         self.validate_markers()?;
+        if self.gaze.enabled {
+            self.gaze
+                .options()
+                .validate()
+                .map_err(|(field, problem)| ConfigError::Invalid { key: format!("gaze.{field}"), problem })?;
+        }
         self.validate_matching()?;
         self.validate_link()?;
 

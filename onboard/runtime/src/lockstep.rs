@@ -80,6 +80,8 @@ impl Pool {
             Message::ToComms(h, d) => OwnedMessage::ToComms(*h, self.bytes(d)),
             Message::ToMapper(h, d) => OwnedMessage::ToMapper(*h, self.bytes(d)),
             Message::TaskStats(m) => OwnedMessage::TaskStats(*m),
+            Message::HeadCommand(m) => OwnedMessage::HeadCommand(*m),
+            Message::Hazards(m) => OwnedMessage::Hazards(Box::new(*m)),
         }
     }
 }

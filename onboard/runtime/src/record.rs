@@ -34,8 +34,8 @@ use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
 use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, MarkerMsg,
-    StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, HazardCellsMsg,
+    HeadCommandMsg, ImuMsg, MarkerMsg, StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
 };
 use protocol::crc::CRC32;
 
@@ -86,6 +86,9 @@ pub enum OwnedMessage {
     ToComms(TeamHeader, Vec<u8>),
     ToMapper(TeamHeader, Vec<u8>),
     TaskStats(TaskStatsMsg),
+    HeadCommand(HeadCommandMsg),
+    /// Boxed: 4 KiB of cells would make every message that large.
+    Hazards(Box<HazardCellsMsg>),
 }
 
 impl OwnedMessage {
@@ -103,6 +106,8 @@ impl OwnedMessage {
             Message::ToComms(h, p) => OwnedMessage::ToComms(*h, p.to_vec()),
             Message::ToMapper(h, p) => OwnedMessage::ToMapper(*h, p.to_vec()),
             Message::TaskStats(m) => OwnedMessage::TaskStats(*m),
+            Message::HeadCommand(m) => OwnedMessage::HeadCommand(*m),
+            Message::Hazards(m) => OwnedMessage::Hazards(Box::new(*m)),
         }
     }
 
@@ -120,6 +125,8 @@ impl OwnedMessage {
             OwnedMessage::ToComms(h, p) => Message::ToComms(h, p),
             OwnedMessage::ToMapper(h, p) => Message::ToMapper(h, p),
             OwnedMessage::TaskStats(m) => Message::TaskStats(m),
+            OwnedMessage::HeadCommand(m) => Message::HeadCommand(m),
+            OwnedMessage::Hazards(m) => Message::Hazards(m),
         }
     }
 
@@ -171,6 +178,8 @@ fn message_bytes<'a>(message: &Message<'a>) -> Result<(&'a [u8], &'a [u8]), Stri
         Message::FrameSwitch(m) => (bytes_of(m), &[]),
         Message::ToComms(h, p) | Message::ToMapper(h, p) => (bytes_of(h), p),
         Message::TaskStats(m) => (bytes_of(m), &[]),
+        Message::HeadCommand(m) => (bytes_of(m), &[]),
+        Message::Hazards(m) => (bytes_of(m), &[]),
     };
     if parts.1.len() > MAX_PAYLOAD_BYTES as usize {
         return Err(format!("payload of {} bytes exceeds {MAX_PAYLOAD_BYTES}", parts.1.len()));
@@ -248,6 +257,14 @@ fn decode(topic: Topic, header: &[u8], payload: &[u8]) -> Result<OwnedMessage, S
         Topic::TaskStats => {
             fixed(payload)?;
             OwnedMessage::TaskStats(read_header(header)?)
+        }
+        Topic::HeadCommand => {
+            fixed(payload)?;
+            OwnedMessage::HeadCommand(read_header(header)?)
+        }
+        Topic::Hazards => {
+            fixed(payload)?;
+            OwnedMessage::Hazards(Box::new(read_header(header)?))
         }
     })
 }

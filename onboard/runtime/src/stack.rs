@@ -71,6 +71,7 @@ pub fn vision_options(config: &RoverConfig, setup: &SensorSetup) -> VisionNodeOp
     options.sgm.disparities = config.vision.sgm_disparities;
     options.despeckle = config.vision.despeckle;
     options.prior_wait_ns = (config.vision.prior_wait_ms * 1e6).round() as u64;
+    options.gaze = config.gaze.enabled.then(|| config.gaze.options());
     options
 }
 

@@ -23,6 +23,8 @@ pub enum Topic {
     ToComms,
     ToMapper,
     TaskStats,
+    HeadCommand,
+    Hazards,
 }
 
 /// What a full subscriber buffer does with a new sample.
@@ -86,7 +88,7 @@ use NodeKind::{Comms, Driver, Filter, Mapper, Vision};
 use Publisher::{Every, Process};
 
 /// The registry, in [`Topic`] order.
-pub const TOPICS: [TopicSpec; 12] = [
+pub const TOPICS: [TopicSpec; 14] = [
     spec(Topic::Imu, "sensors/imu", 1, Process(Driver), TopicQos { history: 256, ..discard(512) }),
     spec(Topic::WheelOdom, "sensors/wheel_odom", 2, Process(Driver), discard(64)),
     spec(
@@ -137,11 +139,25 @@ pub const TOPICS: [TopicSpec; 12] = [
         Every,
         TopicQos { max_publishers: 8, overflow: Overflow::DropOldest, ..discard(16) },
     ),
+    spec(
+        Topic::HeadCommand,
+        "control/head",
+        13,
+        Process(Vision),
+        TopicQos { overflow: Overflow::DropOldest, ..discard(8) },
+    ),
+    spec(
+        Topic::Hazards,
+        "vision/hazards",
+        14,
+        Process(Vision),
+        TopicQos { overflow: Overflow::DropOldest, ..discard(2) },
+    ),
 ];
 
 impl Topic {
-    pub const ALL: [Topic; 12] = {
-        let mut all = [Topic::Imu; 12];
+    pub const ALL: [Topic; 14] = {
+        let mut all = [Topic::Imu; 14];
         let mut i = 0;
         while i < TOPICS.len() {
             all[i] = TOPICS[i].topic;

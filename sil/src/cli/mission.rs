@@ -40,6 +40,9 @@ const USAGE: &str = "usage: sil mission [--robots N] [--scenario NAME] [--durati
   --radio R              serial (57.6 kbit/s radio, default) or wifi (lossy mesh)
   --threads N            lockstep runner: threads stepping the robots in parallel between its
                          barriers (default: the machine's cores; the outputs do not depend on it)
+  --gaze G               on: the firmware's gaze policy points each rover's pan-tilt head
+                         (look ahead / look down while driving, a sweep at stops); off
+                         (default): the simulator's scripted head
   --markers M            the robots' AprilTag detector and its uncertainty model: lut_online
                          (the thesis's, default), lut, online, quadratic, constant, or off; a
                          camera without a table (wide-angle, flyer) uses online for the lut models
@@ -182,6 +185,13 @@ fn parse_args(args: Vec<OsString>) -> Result<Option<(MissionOptions, bool)>, Str
                     "none" => InterRobotConsistency::None,
                     "pcm" => InterRobotConsistency::Pcm,
                     other => return Err(format!("--consistency: expected none or pcm, got {other:?}")),
+                };
+            }
+            Long("gaze") => {
+                options.gaze = match text(&mut parser, "--gaze")?.as_str() {
+                    "on" => true,
+                    "off" => false,
+                    other => return Err(format!("--gaze: expected on or off, got {other:?}")),
                 };
             }
             Long("markers") => {

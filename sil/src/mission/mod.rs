@@ -75,6 +75,9 @@ pub struct MissionOptions {
     /// The robots' marker detector and its uncertainty model; `None`: no detector (the
     /// simulator's cameras have tables for the `lut` models at every downscale).
     pub markers: Option<onboard::config::MarkerModelConfig>,
+    /// The firmware's gaze policy points the rovers' heads (`--gaze on`); off, the simulator's
+    /// script does (mounted tilt, a pan sweep at each stop).
+    pub gaze: bool,
     /// The robots' submap matcher and its mode (`None`: off).
     pub matching: Option<onboard::config::MatchModeConfig>,
     /// Lockstep runner: after the mission, every pair the matchers attempted is matched again in
@@ -136,6 +139,7 @@ impl Default for MissionOptions {
             wrong_closure_fraction: 0.0,
             consistency: onboard::config::InterRobotConsistency::default(),
             markers: Some(onboard::config::MarkerModelConfig::LutOnline),
+            gaze: false,
             matching: Some(onboard::config::MatchModeConfig::FourD),
             compare_match_modes: false,
             evaluate_match_pairs: false,

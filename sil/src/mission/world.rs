@@ -55,6 +55,8 @@ pub fn robot_config(options: &MissionOptions, world: &World, robot: usize) -> Re
         None => config.matching.enabled = false,
         Some(mode) => config.matching.mode = mode,
     }
+    // Only a head can be pointed (the flyer's cameras are fixed).
+    config.gaze.enabled = options.gaze && world.robots[robot].model().head.is_some();
     config.mapper.inter_robot_consistency = options.consistency;
     if let Some(distance_m) = options.submap_max_distance_m {
         config.mapper.submap_max_distance_m = distance_m;

@@ -15,8 +15,8 @@ use iceoryx2::service::builder::publish_subscribe::{
 };
 use iceoryx2::service::port_factory::publisher::PortFactoryPublisher;
 use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, MarkerMsg,
-    StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, HazardCellsMsg,
+    HeadCommandMsg, ImuMsg, MarkerMsg, StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
 };
 
 use super::{
@@ -133,6 +133,8 @@ enum Pub {
     FrameSwitch(Publisher<Ipc, FrameSwitchMsg, ()>),
     Team(Publisher<Ipc, [u8], TeamHeader>),
     TaskStats(Publisher<Ipc, TaskStatsMsg, ()>),
+    HeadCommand(Publisher<Ipc, HeadCommandMsg, ()>),
+    Hazards(Publisher<Ipc, HazardCellsMsg, ()>),
 }
 
 fn send_value<T: Debug + Copy + ZeroCopySend>(port: &Publisher<Ipc, T, ()>, value: T) -> Result<usize, String> {
@@ -191,6 +193,8 @@ impl Pub {
             Topic::FrameSwitch => fixed!(FrameSwitch, FrameSwitchMsg),
             Topic::ToComms | Topic::ToMapper => sliced!(Team, u8, TeamHeader, protocol::MAX_PACKET_BYTES),
             Topic::TaskStats => fixed!(TaskStats, TaskStatsMsg),
+            Topic::HeadCommand => fixed!(HeadCommand, HeadCommandMsg),
+            Topic::Hazards => fixed!(Hazards, HazardCellsMsg),
         })
     }
 
@@ -214,6 +218,8 @@ impl Pub {
             (Pub::FrameSwitch(p), Message::FrameSwitch(m)) => send_value(p, *m),
             (Pub::Team(p), Message::ToComms(h, bytes) | Message::ToMapper(h, bytes)) => send_slice(p, *h, bytes),
             (Pub::TaskStats(p), Message::TaskStats(m)) => send_value(p, *m),
+            (Pub::HeadCommand(p), Message::HeadCommand(m)) => send_value(p, *m),
+            (Pub::Hazards(p), Message::Hazards(m)) => send_value(p, *m),
             _ => Err("publisher and message types differ".to_owned()),
         }
     }
@@ -368,6 +374,8 @@ enum Sub {
     FrameSwitch(Subscriber<Ipc, FrameSwitchMsg, ()>),
     Team(Subscriber<Ipc, [u8], TeamHeader>),
     TaskStats(Subscriber<Ipc, TaskStatsMsg, ()>),
+    HeadCommand(Subscriber<Ipc, HeadCommandMsg, ()>),
+    Hazards(Subscriber<Ipc, HazardCellsMsg, ()>),
 }
 
 /// A received sample, held (still in shared memory) until the drain round hands it over.
@@ -384,6 +392,8 @@ enum Held {
     FrameSwitch(Sample<Ipc, FrameSwitchMsg, ()>),
     Team(Topic, Sample<Ipc, [u8], TeamHeader>),
     TaskStats(Sample<Ipc, TaskStatsMsg, ()>),
+    HeadCommand(Sample<Ipc, HeadCommandMsg, ()>),
+    Hazards(Sample<Ipc, HazardCellsMsg, ()>),
 }
 
 impl Held {
@@ -401,6 +411,8 @@ impl Held {
             Held::FrameSwitch(s) => Message::FrameSwitch(s.payload()),
             Held::Team(topic, s) => team_message(*topic, s.user_header(), s.payload())?,
             Held::TaskStats(s) => Message::TaskStats(s.payload()),
+            Held::HeadCommand(s) => Message::HeadCommand(s.payload()),
+            Held::Hazards(s) => Message::Hazards(s.payload()),
         })
     }
 }
@@ -428,6 +440,8 @@ impl Sub {
             Topic::FrameSwitch => sub!(FrameSwitch, FrameSwitchMsg, ()),
             Topic::ToComms | Topic::ToMapper => sub!(Team, [u8], TeamHeader),
             Topic::TaskStats => sub!(TaskStats, TaskStatsMsg, ()),
+            Topic::HeadCommand => sub!(HeadCommand, HeadCommandMsg, ()),
+            Topic::Hazards => sub!(Hazards, HazardCellsMsg, ()),
         })
     }
 
@@ -448,6 +462,8 @@ impl Sub {
             Sub::FrameSwitch(s) => wrap(s.receive(), Held::FrameSwitch),
             Sub::Team(s) => wrap(s.receive(), |sample| Held::Team(topic, sample)),
             Sub::TaskStats(s) => wrap(s.receive(), Held::TaskStats),
+            Sub::HeadCommand(s) => wrap(s.receive(), Held::HeadCommand),
+            Sub::Hazards(s) => wrap(s.receive(), Held::Hazards),
         }
     }
 
@@ -464,6 +480,8 @@ impl Sub {
             Sub::FrameSwitch(s) => s.has_samples(),
             Sub::Team(s) => s.has_samples(),
             Sub::TaskStats(s) => s.has_samples(),
+            Sub::HeadCommand(s) => s.has_samples(),
+            Sub::Hazards(s) => s.has_samples(),
         };
         r.map_err(|e| format!("{e:?}"))
     }

@@ -15,8 +15,8 @@
 //! memory ([`Outbox::publish_stereo_with`]: a loaned iceoryx2 sample in the process runner), so
 //! the driver holds no image buffer and copies nothing.
 
-use hal::sensor::{ImuSample, SensorEvent, SensorSource, StereoCalibration, WheelOdomSample};
-use msgs::{ImuMsg, StereoHeader, WheelOdomMsg};
+use hal::sensor::{HeadTarget, ImuSample, SensorEvent, SensorSource, StereoCalibration, WheelOdomSample};
+use msgs::{HeadCommandMsg, ImuMsg, StereoHeader, WheelOdomMsg};
 
 use super::{Message, Node, NodeError, Outbox, Topic};
 
@@ -39,6 +39,10 @@ pub struct DriverCounts {
     pub out_of_order: u64,
     /// Events of a live source stamped before sensor time 0 (not published).
     pub before_epoch: u64,
+    /// Head commands passed to a head that moves, and those the source had no head for.
+    pub head_commands: u64,
+    pub head_commands_ignored: u64,
+    pub head_command_errors: u64,
 }
 
 /// One robot's sensors on the bus (see the module documentation).
@@ -131,6 +135,30 @@ impl DriverNode {
     /// published.
     pub fn finished(&self) -> bool {
         self.finished && self.held.is_none()
+    }
+
+    /// Passes a gaze command to the source on its own clock. A command before the first event
+    /// (sensor time not yet defined) is taken as given at the source's time 0.
+    fn command_head(&mut self, command: &HeadCommandMsg) -> Result<(), NodeError> {
+        let target = HeadTarget {
+            stamp_ns: command.stamp_ns.saturating_add(self.time_offset_ns.unwrap_or(0)),
+            pan_rad: command.pan_rad,
+            tilt_rad: command.tilt_rad,
+            max_rate_radps: command.max_rate_radps,
+        };
+        // A head that cannot be reached must not stop the sensors: the pairs report the
+        // angles the head really has, whatever was commanded.
+        match self.source.command_head(&target) {
+            Ok(true) => self.counts.head_commands += 1,
+            Ok(false) => self.counts.head_commands_ignored += 1,
+            Err(e) => {
+                self.counts.head_command_errors += 1;
+                if self.counts.head_command_errors <= 5 {
+                    eprintln!("driver: head command not delivered: {e}");
+                }
+            }
+        }
+        Ok(())
     }
 
     /// An event's stamp in sensor time.
@@ -259,10 +287,13 @@ impl Node for DriverNode {
     }
 
     fn subscriptions(&self) -> &'static [Topic] {
-        &[]
+        &[Topic::HeadCommand]
     }
 
-    fn on_message(&mut self, _message: Message<'_>, _out: &mut dyn Outbox) -> Result<(), NodeError> {
+    fn on_message(&mut self, message: Message<'_>, _out: &mut dyn Outbox) -> Result<(), NodeError> {
+        if let Message::HeadCommand(command) = message {
+            self.command_head(command)?;
+        }
         Ok(())
     }
 

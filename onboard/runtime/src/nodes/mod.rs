@@ -14,13 +14,15 @@
 pub mod comms;
 pub mod driver;
 pub mod filter;
+pub mod gaze;
 pub mod mapper;
 pub mod markers;
+pub mod surroundings;
 pub mod vision;
 
 use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, MarkerMsg,
-    StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, HazardCellsMsg,
+    HeadCommandMsg, ImuMsg, MarkerMsg, StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
 };
 
 pub use crate::topics::Topic;
@@ -44,6 +46,8 @@ pub enum Message<'a> {
     /// A `protocol`-encoded team message received from a peer, for the mapper.
     ToMapper(&'a TeamHeader, &'a [u8]),
     TaskStats(&'a TaskStatsMsg),
+    HeadCommand(&'a HeadCommandMsg),
+    Hazards(&'a HazardCellsMsg),
 }
 
 impl Message<'_> {
@@ -61,6 +65,8 @@ impl Message<'_> {
             Message::ToComms(..) => Topic::ToComms,
             Message::ToMapper(..) => Topic::ToMapper,
             Message::TaskStats(_) => Topic::TaskStats,
+            Message::HeadCommand(_) => Topic::HeadCommand,
+            Message::Hazards(_) => Topic::Hazards,
         }
     }
 
@@ -78,6 +84,8 @@ impl Message<'_> {
             Message::FrameSwitch(m) => m.stamp_ns,
             Message::ToComms(h, _) | Message::ToMapper(h, _) => h.stamp_ns,
             Message::TaskStats(m) => m.stamp_ns,
+            Message::HeadCommand(m) => m.stamp_ns,
+            Message::Hazards(m) => m.stamp_ns,
         }
     }
 }

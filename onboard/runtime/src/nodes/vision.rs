@@ -40,7 +40,9 @@ use nalgebra::Isometry3;
 use vision::obstacles::{ObstacleClassifier, ObstacleConfig, PixelLabels};
 use vision::{DepthOptions, DepthPipeline, Rectifier, StereoOdometry, StereoView, VoConfig, VoError, VoOutput};
 
+use super::gaze::GazeOptions;
 use super::markers::{MarkerOptions, MarkerStage, MarkerSummary};
+use super::surroundings::{Surroundings, SurroundingsSummary};
 use super::{Message, Node, NodeError, Outbox, Topic};
 use crate::vio::VioOptions;
 
@@ -77,6 +79,9 @@ pub struct VisionNodeOptions {
     pub odometry_follows_filter: bool,
     /// Robot-marker detection (off: `None`).
     pub markers: Option<MarkerOptions>,
+    /// The gaze policy commanding the pan-tilt head (off: `None`, the head stays where the
+    /// driver has it).
+    pub gaze: Option<GazeOptions>,
 }
 
 impl VisionNodeOptions {
@@ -92,6 +97,7 @@ impl VisionNodeOptions {
             prior_wait_ns: 50_000_000,
             odometry_follows_filter: options.use_imu,
             markers: None,
+            gaze: None,
         }
     }
 }
@@ -128,6 +134,7 @@ pub struct VisionNodeSummary {
     /// Pairs copied out of their message to wait for their filter state (see the module docs).
     pub pairs_held: u64,
     pub markers: MarkerSummary,
+    pub surroundings: SurroundingsSummary,
 }
 
 /// The latest filter state, for the obstacle attitude and the filter status.
@@ -135,6 +142,7 @@ pub struct VisionNodeSummary {
 struct LatestState {
     stamp_ns: u64,
     t_local_body: Isometry3<f64>,
+    frame_id: u32,
     running: bool,
 }
 
@@ -154,6 +162,8 @@ pub struct VisionNode {
     classifier: ObstacleClassifier,
     labels: PixelLabels,
     markers: Option<MarkerStage>,
+    /// Local obstacle map, hazard messages, gaze policy.
+    surroundings: Surroundings,
     /// Capture stamp of the pair in `frame` whose odometry has not run yet.
     pending_capture_ns: Option<u64>,
     latest: Option<LatestState>,
@@ -221,6 +231,7 @@ impl VisionNode {
             classifier,
             labels: PixelLabels::default(),
             markers,
+            surroundings: Surroundings::new(options.obstacles.cell_size_m, options.gaze),
             pending_capture_ns: None,
             latest: None,
             frame_id: None,
@@ -237,6 +248,7 @@ impl VisionNode {
     pub fn summary(&self) -> VisionNodeSummary {
         VisionNodeSummary {
             markers: self.markers.as_ref().map(MarkerStage::summary).unwrap_or_default(),
+            surroundings: self.surroundings.summary(),
             ..self.summary
         }
     }
@@ -244,6 +256,11 @@ impl VisionNode {
     /// The rectified calibration the odometry and the disparity maps use.
     pub fn rectified_calibration(&self) -> &StereoCalibration {
         &self.calibration
+    }
+
+    /// The rolling local obstacle map (in the filter's current local frame).
+    pub fn local_map(&self) -> &vision::obstacles::LocalObstacleMap {
+        self.surroundings.map()
     }
 
     /// Per-pixel labels of the last classified pair.
@@ -297,7 +314,7 @@ impl VisionNode {
             self.summary.errors += 1;
             return Ok(());
         }
-        self.classify(header.pan_rad, header.tilt_rad);
+        self.classify(header.stamp_ns, header.pan_rad, header.tilt_rad);
         let (width_px, height_px) = self.depth.size_px();
         let disparity_header = DisparityHeader {
             stamp_ns: header.stamp_ns,
@@ -345,7 +362,7 @@ impl VisionNode {
     }
 
     /// Obstacle labels on the pipeline's depth.
-    fn classify(&mut self, pan_rad: f64, tilt_rad: f64) {
+    fn classify(&mut self, stamp_ns: u64, pan_rad: f64, tilt_rad: f64) {
         // Without an IMU the filter's frame is not levelled: no attitude to classify against.
         let levelled = self.options.odometry_follows_filter;
         let (depth, geometry) = (self.depth.depth(), self.depth.geometry());
@@ -353,6 +370,12 @@ impl VisionNode {
             Some(latest) => {
                 let t_local_cam = latest.t_local_body * self.calibration.t_body_left(pan_rad, tilt_rad);
                 self.classifier.classify(depth, geometry, &t_local_cam, &mut self.labels);
+                self.surroundings.integrate(
+                    stamp_ns,
+                    &latest.t_local_body,
+                    latest.frame_id,
+                    self.classifier.height_map(),
+                );
             }
             None => {
                 self.summary.frames_without_attitude += 1;
@@ -379,8 +402,9 @@ impl VisionNode {
             None => self.frame_id = Some(state.frame_id),
         }
         let running = state.status == FilterStateMsg::RUNNING;
-        self.latest = Some(LatestState { stamp_ns: state.stamp_ns, t_local_body, running });
+        self.latest = Some(LatestState { stamp_ns: state.stamp_ns, t_local_body, frame_id: state.frame_id, running });
         if running {
+            self.surroundings.on_state(state.stamp_ns, &t_local_body, state.v_local_mps);
             self.states.insert(chained(state.stamp_ns, self.t_first_local * t_local_body));
         }
         if self.pending_capture_ns.is_some_and(|capture| state.stamp_ns >= capture) {
@@ -398,6 +422,7 @@ impl VisionNode {
             Some(current) if current == switch.old_frame_id => {
                 self.t_first_local *= t_old_new;
                 self.frame_id = Some(switch.new_frame_id);
+                self.surroundings.on_frame_switch(&t_old_new, switch.new_frame_id);
             }
             Some(current) if current >= switch.new_frame_id => {}
             _ => {
@@ -413,6 +438,7 @@ impl VisionNode {
         self.t_first_local = Isometry3::identity();
         self.states.clear();
         self.capture_poses.clear();
+        self.surroundings.forget();
     }
 
     /// The odometry of the pair held in `frame`, if one waits.
@@ -548,6 +574,6 @@ impl Node for VisionNode {
         if self.pending_capture_ns.is_some_and(|capture| now_ns >= capture.saturating_add(self.options.prior_wait_ns)) {
             self.run_pending_odometry(out)?;
         }
-        Ok(())
+        self.surroundings.on_tick(now_ns, out)
     }
 }

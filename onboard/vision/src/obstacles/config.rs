@@ -80,6 +80,10 @@ pub struct ObstacleConfig {
     pub step_support_cells: usize,
     /// Step cells count only in 8-connected groups of at least this many cells.
     pub min_step_cluster_cells: usize,
+    /// Unknown beyond a rim: the negative-edge test also pairs a pixel with the nearest valid
+    /// pixel below it across at most this many unmatched pixels of its column (0 = the
+    /// thesis's rule, adjacent pixels only). See [`super::negative_edges`].
+    pub bridge_invalid_px: usize,
 }
 
 impl Default for ObstacleConfig {
@@ -97,6 +101,7 @@ impl Default for ObstacleConfig {
             min_edge_pixels: 10,
             step_support_cells: 2,
             min_step_cluster_cells: 1,
+            bridge_invalid_px: 0,
         }
     }
 }

@@ -14,6 +14,8 @@
 //! The map lives in the filter's local frame; at a frame switch the caller clears it (or keeps
 //! it if the switch's translation is small compared to the map) because the lattice moves.
 
+use nalgebra::Isometry3;
+
 use super::height_map::HeightMap;
 
 /// A traversability grid around the robot.
@@ -132,6 +134,63 @@ impl LocalObstacleMap {
 
     pub fn is_obstacle_at(&self, x_m: f64, y_m: f64) -> bool {
         self.traversability_at(x_m, y_m).is_some_and(|v| v > 1.0)
+    }
+
+    /// Moves the map into another gravity-aligned frame: every known cell goes to the cell
+    /// holding its centre mapped by `t_new_old` (its yaw and horizontal translation; the frames
+    /// share the vertical). A frame switch keeps what was seen instead of forgetting it.
+    pub fn reframe(&mut self, t_new_old: &Isometry3<f64>) {
+        let yaw = t_new_old.rotation.euler_angles().2;
+        let (s, c) = yaw.sin_cos();
+        let t = t_new_old.translation.vector;
+        let known: Vec<(f64, f64, f32, u64)> = {
+            let side = self.side as i64;
+            (self.origin.1..self.origin.1 + side)
+                .flat_map(|j| (self.origin.0..self.origin.0 + side).map(move |i| (i, j)))
+                .filter_map(|(i, j)| {
+                    let slot = self.slot(i, j);
+                    let v = self.traversability[slot];
+                    let (x, y) = ((i as f64 + 0.5) * self.cell_size_m, (j as f64 + 0.5) * self.cell_size_m);
+                    (!v.is_nan()).then_some((c * x - s * y + t.x, s * x + c * y + t.y, v, self.stamp_ns[slot]))
+                })
+                .collect()
+        };
+        let half = self.side as i64 / 2;
+        let centre =
+            ((c * self.centre_x() - s * self.centre_y() + t.x), (s * self.centre_x() + c * self.centre_y() + t.y));
+        self.clear();
+        self.origin =
+            ((centre.0 / self.cell_size_m).floor() as i64 - half, (centre.1 / self.cell_size_m).floor() as i64 - half);
+        for (x, y, v, stamp_ns) in known {
+            let (i, j) = ((x / self.cell_size_m).floor() as i64, (y / self.cell_size_m).floor() as i64);
+            if self.contains(i, j) {
+                let slot = self.slot(i, j);
+                // Two old cells may land in one new cell: keep the less traversable.
+                let old = self.traversability[slot];
+                if old.is_nan() || v > old {
+                    self.traversability[slot] = v;
+                    self.stamp_ns[slot] = stamp_ns;
+                }
+            }
+        }
+    }
+
+    fn centre_x(&self) -> f64 {
+        (self.origin.0 as f64 + (self.side / 2) as f64) * self.cell_size_m
+    }
+
+    fn centre_y(&self) -> f64 {
+        (self.origin.1 as f64 + (self.side / 2) as f64) * self.cell_size_m
+    }
+
+    /// Lattice indices of the untraversable cells (filtered traversability above 1).
+    pub fn hazard_cells(&self) -> impl Iterator<Item = (i64, i64)> + '_ {
+        let side = self.side as i64;
+        (self.origin.1..self.origin.1 + side).flat_map(move |j| {
+            (self.origin.0..self.origin.0 + side)
+                .filter(move |&i| self.traversability[self.slot(i, j)] > 1.0)
+                .map(move |i| (i, j))
+        })
     }
 
     /// Every known cell as `(centre x, centre y, traversability)`, for a planner or a picture.

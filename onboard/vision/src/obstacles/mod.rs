@@ -91,8 +91,9 @@ pub struct ObstacleClassifier {
     /// Per pixel: flat height-map index (`u32::MAX` = none) and local height of its point.
     pixel_cell: Vec<u32>,
     pixel_z_m: Vec<f32>,
-    previous_row: Vec<EdgePixel>,
-    current_row: Vec<EdgePixel>,
+    /// Per column, walking upwards: the nearest valid pixel below the current row and the
+    /// unmatched pixels since (the negative-edge test's lower partner).
+    below: Vec<Below>,
     /// Per column: the farthest horizontal reach (less 2σ) seen so far, walking upwards.
     column_reach_m: Vec<f64>,
     /// Negative-edge tops of this image: (pixel, cell, traversability).
@@ -108,6 +109,14 @@ pub struct ObstacleClassifier {
 
 const NO_CELL: u32 = u32::MAX;
 
+/// The negative-edge test's lower partner in one column (see [`ObstacleClassifier::below`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct Below {
+    pixel: EdgePixel,
+    index: usize,
+    gap_px: usize,
+}
+
 impl ObstacleClassifier {
     pub fn new(config: ObstacleConfig) -> Result<Self, ObstacleConfigError> {
         config.validate()?;
@@ -116,8 +125,7 @@ impl ObstacleClassifier {
             map: HeightMap::default(),
             pixel_cell: Vec::new(),
             pixel_z_m: Vec::new(),
-            previous_row: Vec::new(),
-            current_row: Vec::new(),
+            below: Vec::new(),
             column_reach_m: Vec::new(),
             edge_tops: Vec::new(),
             edge_index: Vec::new(),
@@ -160,10 +168,8 @@ impl ObstacleClassifier {
         self.pixel_cell.resize(n, NO_CELL);
         self.pixel_z_m.clear();
         self.pixel_z_m.resize(n, f32::NAN);
-        self.previous_row.clear();
-        self.previous_row.resize(w, EdgePixel::Invalid);
-        self.current_row.clear();
-        self.current_row.resize(w, EdgePixel::Invalid);
+        self.below.clear();
+        self.below.resize(w, Below::default());
         self.edge_tops.clear();
         let t = t_local_cam.translation.vector;
         self.map.reset(cfg.cell_size_m, cfg.map_half_extent_m, [t.x, t.y]);
@@ -174,8 +180,8 @@ impl ObstacleClassifier {
         self.column_reach_m.clear();
         self.column_reach_m.resize(w, f64::NEG_INFINITY);
         // Bottom row first: the 2.5D consistency test walks each column upwards. The edge test
-        // compares each pixel with its upper neighbour, so which of the two comes first does not
-        // matter; here the lower one (the previous row) does.
+        // pairs each valid pixel with the nearest valid one below it (across at most
+        // `bridge_invalid_px` unmatched pixels), so that one is already known.
         let rows = h.min(depth.depth_m.len() / w.max(1));
         for y in (0..rows).rev() {
             let ray_y = (y as f64 - geometry.cy_px) / geometry.fy_px;
@@ -212,12 +218,16 @@ impl ObstacleClassifier {
                         EdgePixel::Finite { depth_m: z, p_local: [p.x, p.y, p.z] }
                     }
                 };
-                self.current_row[x] = pixel;
-                if y + 1 == rows {
+                let below = self.below[x];
+                if pixel == EdgePixel::Invalid {
+                    self.below[x].gap_px += 1;
                     continue;
                 }
-                let Some((top, s_min)) = negative_edges::test_pair(&pixel, &self.previous_row[x], cfg.edge_jump_m)
-                else {
+                self.below[x] = Below { pixel, index: i, gap_px: 0 };
+                if below.gap_px > cfg.bridge_invalid_px {
+                    continue;
+                }
+                let Some((top, s_min)) = negative_edges::test_pair(&pixel, &below.pixel, cfg.edge_jump_m) else {
                     continue;
                 };
                 if s_min <= max_slope {
@@ -225,7 +235,7 @@ impl ObstacleClassifier {
                 }
                 let (top_pixel, top_point) = match top {
                     Top::Upper => (i, pixel),
-                    Top::Lower => (i + w, self.previous_row[x]),
+                    Top::Lower => (below.index, below.pixel),
                 };
                 if let EdgePixel::Finite { depth_m, p_local } = top_point
                     && depth_m <= max_depth_m
@@ -234,7 +244,6 @@ impl ObstacleClassifier {
                     self.edge_tops.push((top_pixel, self.map.index_of(p_local[0], p_local[1]), traversability));
                 }
             }
-            std::mem::swap(&mut self.previous_row, &mut self.current_row);
         }
 
         let t_cam_local = t_local_cam.inverse();

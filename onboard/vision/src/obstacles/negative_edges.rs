@@ -10,7 +10,17 @@
 //! it passes the finite point and never meets the ground again, so the ground beyond the finite
 //! point (the top) stays below that ray and falls at least as steeply as the ray itself. `s_min`
 //! is then the ray's downward slope; a ray above the horizon (sky) gives `s_min ≤ 0`, no edge.
-//! Invalid pixels (NaN, no match) never form a pair.
+//! Invalid pixels (NaN, no match) never form a pair themselves. **Unknown beyond a rim**
+//! (`ObstacleConfig::bridge_invalid_px`): a valid pixel is also paired with the nearest valid
+//! pixel below it across a short run of unmatched ones. Stereo leaves the ground beyond a rim
+//! unmatched where it is hidden (the far side of a crater edge) or black (a shadowed ditch); the
+//! next valid pixel up the column is then the first ground seen again, and the test between the
+//! rim and it is the thesis's test across the hidden strip: the ground in between is not seen,
+//! so the rover may not assume it is there, and `s_min` from the rim down to the far point is
+//! the least it would have to descend. Where the unseen strip is only a small shadow on level
+//! ground (behind a rock), the far point is as high as the near one and `s_min` stays small.
+//! Across a bridged run an infinite upper pixel's ray passes a little above the rim, so its
+//! slope bounds the drop only up to that margin, which a short run keeps small.
 
 /// What a pixel contributes to the test, in the gravity-aligned local frame.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
