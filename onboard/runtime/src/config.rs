@@ -320,6 +320,10 @@ pub struct VisionConfig {
     pub vo_prior: bool,
     /// Longest wait for the filter state of a capture before the odometry runs without a prior.
     pub prior_wait_ms: f64,
+    /// Obstacle classification beyond the thesis's edge rule: a rim with ground seen more than
+    /// this much lower beyond it is a hazard whatever the slope between (0 = the thesis's rule;
+    /// `vision::obstacles::ObstacleConfig::hidden_drop_m`, measured in `onboard/BENCHMARKS.md`).
+    pub hidden_drop_m: f64,
 }
 
 impl Default for VisionConfig {
@@ -331,6 +335,7 @@ impl Default for VisionConfig {
             despeckle: true,
             vo_prior: true,
             prior_wait_ms: 50.0,
+            hidden_drop_m: 0.0,
         }
     }
 }
@@ -368,6 +373,9 @@ pub struct GazeConfig {
     pub turning_radps: f64,
     pub standing_s: f64,
     pub resend_s: f64,
+    /// The odometry skips pairs whose head differs by more than this from the last it tracked
+    /// (`nodes::vision::VisionNodeOptions::vo_head_gate_rad`); 0 = it takes every pair.
+    pub vo_head_gate_rad: f64,
 }
 
 impl Default for GazeConfig {
@@ -386,6 +394,7 @@ impl Default for GazeConfig {
             turning_radps: o.turning_radps,
             standing_s: o.standing_s,
             resend_s: o.resend_s,
+            vo_head_gate_rad: 0.05,
         }
     }
 }
@@ -996,12 +1005,20 @@ impl RoverConfig {
             check(in_range(v, 0.001, 10.0), "mapper.max_depth_error_m", || format!("{v} m: expected 0.001..=10"))?;
         }
 
+        let drop = self.vision.hidden_drop_m;
+        check(drop == 0.0 || in_range(drop, 0.05, 5.0), "vision.hidden_drop_m", || {
+            format!("{drop} m: expected 0 (off) or 0.05..=5")
+        })?;
         self.validate_markers()?;
         if self.gaze.enabled {
             self.gaze
                 .options()
                 .validate()
                 .map_err(|(field, problem)| ConfigError::Invalid { key: format!("gaze.{field}"), problem })?;
+            let gate = self.gaze.vo_head_gate_rad;
+            check(gate.is_finite() && (0.0..=1.0).contains(&gate), "gaze.vo_head_gate_rad", || {
+                format!("{gate}: expected 0 (off) ..= 1 rad")
+            })?;
         }
         self.validate_matching()?;
         self.validate_link()?;

@@ -72,6 +72,9 @@ pub fn vision_options(config: &RoverConfig, setup: &SensorSetup) -> VisionNodeOp
     options.despeckle = config.vision.despeckle;
     options.prior_wait_ns = (config.vision.prior_wait_ms * 1e6).round() as u64;
     options.gaze = config.gaze.enabled.then(|| config.gaze.options());
+    options.vo_head_gate_rad =
+        (config.gaze.enabled && config.gaze.vo_head_gate_rad > 0.0).then_some(config.gaze.vo_head_gate_rad);
+    options.obstacles.hidden_drop_m = config.vision.hidden_drop_m;
     options
 }
 

@@ -138,6 +138,59 @@ fn a_cliff_edge_is_a_negative_obstacle_at_its_top() {
 }
 
 #[test]
+fn a_drop_hidden_behind_a_far_rim_is_an_edge_with_hidden_drops() {
+    let config = ObstacleConfig { hidden_drop_m: 0.15, ..ObstacleConfig::default() };
+    let classify_with = |depth: &DepthImage, config: ObstacleConfig| {
+        let mut classifier = ObstacleClassifier::new(config).unwrap();
+        let mut labels = PixelLabels::default();
+        classifier.classify(depth, &GEOMETRY, &camera(), &mut labels);
+        labels
+    };
+    // A 1 m drop at 2.8 m, beyond the 2.66 m the slope rule can see (and within this half-size
+    // camera's 3.2 m range cutoff): the floor seen over the rim is 1 m lower, the ground
+    // between out of view.
+    let far = render(|x, _| if x < 2.8 { 0.0 } else { -1.0 });
+    assert_eq!(classify(&far).1.flags.iter().filter(|&&f| f & PixelLabels::NEGATIVE_EDGE != 0).count(), 0);
+    let labels = classify_with(&far, config);
+    let edges = labelled_points(&far, &labels, PixelLabels::NEGATIVE_EDGE);
+    assert!(edges.len() > W / 2, "{} edge pixels", edges.len());
+    assert!(edges.iter().all(|p| (p.x - 2.8).abs() < 0.05 && p.z.abs() < 0.01));
+    // A shallow ditch (0.1 m, less than h_max) and a gentle descent the camera sees: none.
+    for ground in [
+        &(|x: f64, _: f64| if (2.8..3.2).contains(&x) { -0.1 } else { 0.0 }) as &dyn Fn(f64, f64) -> f64,
+        &|x: f64, _: f64| if x < 2.4 { 0.0 } else { -(x - 2.4) * 10f64.to_radians().tan() },
+    ] {
+        let depth = render(ground);
+        let labels = classify_with(&depth, config);
+        assert_eq!(labels.flags.iter().filter(|&&f| f & PixelLabels::NEGATIVE_EDGE != 0).count(), 0);
+    }
+    // A 0.3 m ditch from 2.6 to 3.6 m whose dark interior stereo leaves unmatched, its far lip
+    // level with the rim: no slope and no drop is seen; bridged across the unmatched pixels, the
+    // 1 m of ground out of view is a gap the wheel would cross blind.
+    let mut depth = render(|x, _| if (2.6..3.6).contains(&x) { -0.3 } else { 0.0 });
+    let t = camera();
+    for v in 0..H {
+        for u in 0..W {
+            let z = depth.depth_m[v * W + u];
+            let ray = nalgebra::Vector3::new(
+                (u as f64 - GEOMETRY.cx_px) / GEOMETRY.fx_px,
+                (v as f64 - GEOMETRY.cy_px) / GEOMETRY.fy_px,
+                1.0,
+            );
+            if z.is_finite() && (t * nalgebra::Point3::from(ray * f64::from(z))).z < -0.02 {
+                depth.depth_m[v * W + u] = f32::NAN;
+            }
+        }
+    }
+    let count = |labels: &PixelLabels| labels.flags.iter().filter(|&&f| f & PixelLabels::NEGATIVE_EDGE != 0).count();
+    assert_eq!(count(&classify_with(&depth, config)), 0, "an unmatched run is not bridged by default");
+    let bridged = classify_with(&depth, ObstacleConfig { bridge_invalid_px: 64, ..config });
+    let edges = labelled_points(&depth, &bridged, PixelLabels::NEGATIVE_EDGE);
+    assert!(edges.len() > W / 2, "{}", edges.len());
+    assert!(edges.iter().all(|p| (p.x - 2.6).abs() < 0.05), "{:?}", edges.first());
+}
+
+#[test]
 fn zero_disparity_beyond_an_edge_counts_as_a_cliff_and_nan_does_not() {
     // Ground ending at 3.5 m with nothing behind (infinite depth): rays just past the rim
     // descend at atan(1.24 / 3.5) ≈ 19.5°, below the 25° limit: no obstacle.

@@ -43,12 +43,13 @@ use eval::map::ObstacleMatching;
 mod evaluator;
 pub mod report;
 mod tally;
+pub mod traverse;
 mod truth;
 mod viewpoints;
 
 pub use evaluator::{Diagnosis, EdgeSample, Evaluator};
 pub use tally::{DISPARITY_BIN_PX, DISPARITY_SPAN_PX, FalseCluster, RANGE_BIN_M, RANGE_BINS, RunOutcome, Tally, ratio};
-pub use truth::{Truth, moon_world};
+pub use truth::{Truth, moon_world, preset_world};
 pub use viewpoints::{
     APPROACH_M, APPROACH_STEP_M, Aim, Approach, DISTANCES_M, EDGE_SECTION_M, Viewpoint, approach_distances, approaches,
     viewpoints,

@@ -60,6 +60,25 @@ impl Truth {
         Truth { rocks, edges, edge_targets }
     }
 
+    /// Keeps only the edge discs where the true ground falls at least `min_drop_m` below the
+    /// disc's centre within 1 m in some direction (the "≥ 0.3 m drop" sections).
+    pub fn keep_drops(&mut self, world: &World, min_drop_m: f64) {
+        let hf = &world.terrain.heightfield;
+        let drops = |p: &Point2<f64>| {
+            let Some(top) = hf.height_at(p.x, p.y) else { return false };
+            (0..16).any(|k| {
+                let (s, c) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
+                (1..=20).any(|i| {
+                    let d = 0.05 * i as f64;
+                    hf.height_at(p.x + c * d, p.y + s * d).is_some_and(|z| top - z >= min_drop_m)
+                })
+            })
+        };
+        self.edges.retain(|o| drops(&o.centre_m));
+        let edges = &self.edges;
+        self.edge_targets.retain(|t| edges.iter().any(|o| (o.centre_m - t).norm() <= 1e-9));
+    }
+
     /// Keeps only the edge discs where the true ground drops by more than `max_step_m` at a mean
     /// slope steeper than `max_slope_rad` (within 1 m, in any of 16 directions from the disc
     /// centre): the cliffs the rover can neither step nor drive down. The sim's crater-edge rule
@@ -85,6 +104,11 @@ impl Truth {
 
 /// The Moon preset's world for `seed` on a square of `size_m`.
 pub fn moon_world(seed: u64, size_m: f64) -> Result<Arc<World>, EvaluationError> {
+    preset_world("moon", seed, size_m)
+}
+
+/// The world of scenario preset `name` (`moon`, `mars`) for `seed` on a square of `size_m`.
+pub fn preset_world(name: &str, seed: u64, size_m: f64) -> Result<Arc<World>, EvaluationError> {
     let options = ScenarioOptions {
         robots: 1,
         duration_s: 20.0,
@@ -95,5 +119,5 @@ pub fn moon_world(seed: u64, size_m: f64) -> Result<Arc<World>, EvaluationError>
         rocks_per_100m2: None,
         rocks_in_hub: false,
     };
-    Ok(World::build(&preset("moon", &options)?)?)
+    Ok(World::build(&preset(name, &options)?)?)
 }

@@ -36,7 +36,7 @@ pub struct Viewpoint {
 }
 
 /// splitmix64: a reproducible stream without a dependency.
-fn next_unit(state: &mut u64) -> f64 {
+pub(super) fn next_unit(state: &mut u64) -> f64 {
     *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
     let mut z = *state;
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -45,7 +45,7 @@ fn next_unit(state: &mut u64) -> f64 {
 }
 
 /// Body resting on the terrain at `(x, y)` heading `yaw`, as the trajectory generator poses it.
-fn body_pose(world: &World, x: f64, y: f64, yaw: f64) -> Option<Isometry3<f64>> {
+pub(super) fn body_pose(world: &World, x: f64, y: f64, yaw: f64) -> Option<Isometry3<f64>> {
     let plane = wheel_contact_plane(&world.terrain.heightfield, x, y, yaw)?;
     let (roll, pitch) = plane.roll_pitch_rad();
     Some(Isometry3::from_parts(
@@ -56,7 +56,7 @@ fn body_pose(world: &World, x: f64, y: f64, yaw: f64) -> Option<Isometry3<f64>> 
 
 /// Whether everything the camera at `cam_xy` heading `yaw` maps (within 5 m, 50° field of view)
 /// lies on the terrain: beyond its edge the void would look like a cliff.
-fn view_on_terrain(world: &World, cam_xy: [f64; 2], yaw: f64) -> bool {
+pub(super) fn view_on_terrain(world: &World, cam_xy: [f64; 2], yaw: f64) -> bool {
     let hf = &world.terrain.heightfield;
     let (s, c) = yaw.sin_cos();
     [(0.0, 0.0), (7.0, 0.0), (7.0, 3.5), (7.0, -3.5)]

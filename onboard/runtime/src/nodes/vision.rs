@@ -82,7 +82,15 @@ pub struct VisionNodeOptions {
     /// The gaze policy commanding the pan-tilt head (off: `None`, the head stays where the
     /// driver has it).
     pub gaze: Option<GazeOptions>,
+    /// The odometry skips pairs whose head pan or tilt differs by more than this from the last
+    /// pair it tracked (the gaze policy's look down, the sweep at a stop), for at most
+    /// [`VO_HEAD_GATE_MAX_NS`]; the mapper and the classifier still take them. `None`: every
+    /// pair goes to the odometry.
+    pub vo_head_gate_rad: Option<f64>,
 }
+
+/// The odometry takes a new head attitude as its reference after skipping this long.
+pub const VO_HEAD_GATE_MAX_NS: u64 = 3_000_000_000;
 
 impl VisionNodeOptions {
     pub fn from_vio(options: &VioOptions) -> Self {
@@ -98,6 +106,7 @@ impl VisionNodeOptions {
             odometry_follows_filter: options.use_imu,
             markers: None,
             gaze: None,
+            vo_head_gate_rad: None,
         }
     }
 }
@@ -133,6 +142,8 @@ pub struct VisionNodeSummary {
     pub errors: u64,
     /// Pairs copied out of their message to wait for their filter state (see the module docs).
     pub pairs_held: u64,
+    /// Pairs the odometry skipped for their head attitude ([`VisionNodeOptions::vo_head_gate_rad`]).
+    pub vo_skipped_head: u64,
     pub markers: MarkerSummary,
     pub surroundings: SurroundingsSummary,
 }
@@ -175,6 +186,9 @@ pub struct VisionNode {
     /// The filter poses (`t_first_body`) at recent captures: the keyframe end of the prior.
     capture_poses: PoseBuffer<FramePose>,
     keyframe_ns: Option<u64>,
+    /// Head angles of the last pair the odometry tracked, and since when pairs were skipped.
+    vo_head: Option<(f64, f64)>,
+    vo_skipping_since_ns: Option<u64>,
     summary: VisionNodeSummary,
 }
 
@@ -240,6 +254,8 @@ impl VisionNode {
             states: PoseBuffer::bounded(STATES_KEPT, SameStamp::KeepLatest),
             capture_poses: PoseBuffer::bounded(CAPTURE_POSES_KEPT, SameStamp::KeepLatest),
             keyframe_ns: None,
+            vo_head: None,
+            vo_skipping_since_ns: None,
             summary: VisionNodeSummary::default(),
             options,
         })
@@ -337,6 +353,10 @@ impl VisionNode {
             markers.process(pair, &self.calibration, out)?;
         }
 
+        if self.skips_for_head(header) {
+            self.summary.vo_skipped_head += 1;
+            return Ok(());
+        }
         let state_known = self.states.lookup(header.stamp_ns, STATE_INTERPOLATION_GAP_NS).is_some();
         let state_passed = self.latest.is_some_and(|l| l.stamp_ns > header.stamp_ns);
         if !self.options.odometry_follows_filter || state_known || state_passed {
@@ -359,6 +379,26 @@ impl VisionNode {
         self.frame.tilt_rad = header.tilt_rad;
         self.pending_capture_ns = Some(header.stamp_ns);
         Ok(())
+    }
+
+    /// Whether the odometry leaves this pair out for its head attitude (see
+    /// [`VisionNodeOptions::vo_head_gate_rad`]); otherwise its angles become the reference.
+    fn skips_for_head(&mut self, header: &StereoHeader) -> bool {
+        let Some(gate) = self.options.vo_head_gate_rad else {
+            return false;
+        };
+        let angles = (header.pan_rad, header.tilt_rad);
+        if let Some((pan, tilt)) = self.vo_head
+            && ((angles.0 - pan).abs() > gate || (angles.1 - tilt).abs() > gate)
+        {
+            let since = *self.vo_skipping_since_ns.get_or_insert(header.stamp_ns);
+            if header.stamp_ns.saturating_sub(since) < VO_HEAD_GATE_MAX_NS {
+                return true;
+            }
+        }
+        self.vo_head = Some(angles);
+        self.vo_skipping_since_ns = None;
+        false
     }
 
     /// Obstacle labels on the pipeline's depth.

@@ -30,7 +30,7 @@ use std::time::Duration;
 use hal::can::interface::CanInterface;
 use hal::canopen::{CanopenMaster, MasterConfig, MasterEvent, NodeId, SkidSteerKinematics, WheelEncoders};
 use hal::sensor::{
-    DeviceHealth, DeviceStatus, SensorError, SensorEvent, SensorSource, StereoCalibration, WheelOdomSample,
+    DeviceHealth, DeviceStatus, HeadTarget, SensorError, SensorEvent, SensorSource, StereoCalibration, WheelOdomSample,
 };
 use hal::xsens::XsensImu;
 use nalgebra::Vector3;
@@ -109,6 +109,9 @@ fn set_available(
 /// The live source over the rover's devices (module documentation).
 pub struct DevicesSource {
     events: Receiver<SensorEvent>,
+    /// The newest gaze target (pan, tilt) for the CAN thread to send; only the newest counts.
+    head_target: Arc<Mutex<Option<(f64, f64)>>>,
+    has_head: bool,
     health: Arc<SharedHealth>,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
@@ -143,6 +146,8 @@ impl DevicesSource {
             h.head.available = false;
         });
         let stop = Arc::new(AtomicBool::new(false));
+        let head_target = Arc::new(Mutex::new(None));
+        let has_head = master_config.head.is_some();
         let mut threads = Vec::new();
         let imu_thread = ImuThread {
             port: config.imu_port.clone(),
@@ -163,11 +168,12 @@ impl DevicesSource {
             },
             relative_sigma: config.wheel_relative_sigma,
             sender,
+            head_target: Arc::clone(&head_target),
             health: Arc::clone(&health),
             stop: Arc::clone(&stop),
         };
         threads.push(spawn("driver-can", move || can_thread.run(bus))?);
-        Ok(DevicesSource { events, health, stop, threads })
+        Ok(DevicesSource { events, head_target, has_head, health, stop, threads })
     }
 }
 
@@ -303,6 +309,7 @@ struct CanThread {
     kinematics: SkidSteerKinematics,
     relative_sigma: f64,
     sender: SyncSender<SensorEvent>,
+    head_target: Arc<Mutex<Option<(f64, f64)>>>,
     health: Arc<SharedHealth>,
     stop: Arc<AtomicBool>,
 }
@@ -357,6 +364,16 @@ impl CanThread {
                 let line = format!("CANopen {event:?}");
                 eprintln!("driver: {line}");
                 self.health.update(|_, log| log.push_back((monotonic_ns(), line)));
+            }
+            // The gaze policy's newest target as RPDO1; the unit moves at its own joint rate.
+            let target = self.head_target.lock().unwrap_or_else(PoisonError::into_inner).take();
+            if let Some((pan_rad, tilt_rad)) = target
+                && let Err(e) = master.command_head(pan_rad, tilt_rad, bus)
+            {
+                self.health.update(|h, log| {
+                    h.head.errors += 1;
+                    log.push_back((monotonic_ns(), format!("head command not sent: {e}")));
+                });
             }
             if let Some(encoders) = master.take_encoders() {
                 last_cycle_ns = now_ns;
@@ -445,5 +462,16 @@ impl SensorSource for DevicesSource {
 
     fn device_log(&self) -> Vec<(u64, String)> {
         self.health.log()
+    }
+
+    /// Queued for the CAN thread, which sends it as the head's RPDO1 (a newer target replaces
+    /// one not sent yet). The commanded rate is the unit's own: CiA 402 profile velocity is not
+    /// configured by the firmware.
+    fn command_head(&mut self, target: &HeadTarget) -> Result<bool, SensorError> {
+        if !self.has_head {
+            return Ok(false);
+        }
+        *self.head_target.lock().unwrap_or_else(PoisonError::into_inner) = Some((target.pan_rad, target.tilt_rad));
+        Ok(true)
     }
 }

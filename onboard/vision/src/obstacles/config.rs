@@ -84,6 +84,14 @@ pub struct ObstacleConfig {
     /// pixel below it across at most this many unmatched pixels of its column (0 = the
     /// thesis's rule, adjacent pixels only). See [`super::negative_edges`].
     pub bridge_invalid_px: usize,
+    /// Beyond the thesis: a rim whose next ground seen up the column is more than this (and
+    /// `h_max`, plus the far point's depth error) lower is an edge whatever the slope between
+    /// ([`super::negative_edges::hidden_drop`]); 0 = off.
+    pub hidden_drop_m: f64,
+    /// With `bridge_invalid_px > 0`: a rim followed up its column by unmatched pixels hiding
+    /// more than this much ground (horizontally, up to the next ground seen) is an edge: a gap
+    /// the wheel would cross blind (a wheel's diameter, 0.3 m).
+    pub max_unseen_gap_m: f64,
 }
 
 impl Default for ObstacleConfig {
@@ -102,6 +110,8 @@ impl Default for ObstacleConfig {
             step_support_cells: 2,
             min_step_cluster_cells: 1,
             bridge_invalid_px: 0,
+            hidden_drop_m: 0.0,
+            max_unseen_gap_m: 0.3,
         }
     }
 }
@@ -115,6 +125,7 @@ impl ObstacleConfig {
             ("max_depth_error_m", self.max_depth_error_m),
             ("cell_size_m", self.cell_size_m),
             ("map_half_extent_m", self.map_half_extent_m),
+            ("max_unseen_gap_m", self.max_unseen_gap_m),
         ] {
             if !(value.is_finite() && value > 0.0) {
                 return Err(ObstacleConfigError::NotPositive { field, value });

@@ -227,12 +227,30 @@ impl ObstacleClassifier {
                 if below.gap_px > cfg.bridge_invalid_px {
                     continue;
                 }
-                let Some((top, s_min)) = negative_edges::test_pair(&pixel, &below.pixel, cfg.edge_jump_m) else {
+                let steep = negative_edges::test_pair(&pixel, &below.pixel, cfg.edge_jump_m)
+                    .filter(|&(_, s_min)| s_min > max_slope)
+                    .map(|(top, s_min)| (top, s_min / max_slope));
+                let verdict = steep.or_else(|| {
+                    let min_drop = |far_depth_m: f32| {
+                        cfg.max_step_m.max(cfg.hidden_drop_m) + model.depth_error_m(f64::from(far_depth_m))
+                    };
+                    (cfg.hidden_drop_m > 0.0)
+                        .then(|| {
+                            negative_edges::hidden_drop(&pixel, &below.pixel, cfg.edge_jump_m, [t.x, t.y], min_drop)
+                        })
+                        .flatten()
+                        .map(|drop| (Top::Lower, drop / cfg.max_step_m))
+                });
+                let verdict = verdict.or_else(|| {
+                    (below.gap_px > 0)
+                        .then(|| negative_edges::unseen_gap(&pixel, &below.pixel, [t.x, t.y]))
+                        .flatten()
+                        .filter(|&gap_m| gap_m > cfg.max_unseen_gap_m)
+                        .map(|gap_m| (Top::Lower, gap_m / cfg.max_unseen_gap_m))
+                });
+                let Some((top, traversability)) = verdict else {
                     continue;
                 };
-                if s_min <= max_slope {
-                    continue;
-                }
                 let (top_pixel, top_point) = match top {
                     Top::Upper => (i, pixel),
                     Top::Lower => (below.index, below.pixel),
@@ -240,7 +258,7 @@ impl ObstacleClassifier {
                 if let EdgePixel::Finite { depth_m, p_local } = top_point
                     && depth_m <= max_depth_m
                 {
-                    let traversability = (s_min / max_slope).min(f64::from(f32::MAX)) as f32;
+                    let traversability = traversability.min(f64::from(f32::MAX)) as f32;
                     self.edge_tops.push((top_pixel, self.map.index_of(p_local[0], p_local[1]), traversability));
                 }
             }

@@ -73,6 +73,47 @@ pub(crate) fn test_pair(upper: &EdgePixel, lower: &EdgePixel, jump_m: f64) -> Op
     }
 }
 
+/// **Hidden drop** (`ObstacleConfig::hidden_drops`): the drop from a rim down to the next
+/// ground seen beyond it in the same column, when that ground lies farther from the camera
+/// (`cam_xy`), more than `min_drop_m` lower, and the depths jump by more than `jump_m` (or
+/// unmatched pixels lie between). The ground in between is out of view (below the ray grazing
+/// the rim, or unmatched), so nothing says the rover could descend it, whatever the slope of the
+/// straight line from rim to far point; the thesis's test would call a far crater floor seen
+/// over a rim traversable when that line is gentle.
+pub(crate) fn hidden_drop(
+    upper: &EdgePixel,
+    lower: &EdgePixel,
+    jump_m: f64,
+    cam_xy: [f64; 2],
+    min_drop_m: impl Fn(f32) -> f64,
+) -> Option<f64> {
+    let (
+        EdgePixel::Finite { depth_m: far_depth, p_local: far },
+        EdgePixel::Finite { depth_m: rim_depth, p_local: rim },
+    ) = (upper, lower)
+    else {
+        return None;
+    };
+    if f64::from(far_depth - rim_depth) <= jump_m {
+        return None;
+    }
+    let reach = |p: &[f64; 3]| (p[0] - cam_xy[0]).hypot(p[1] - cam_xy[1]);
+    let drop = rim[2] - far[2];
+    (reach(far) > reach(rim) && drop > min_drop_m(*far_depth)).then_some(drop)
+}
+
+/// The ground hidden between a rim (`lower`) and the next ground seen beyond it (`upper`)
+/// across unmatched pixels: the horizontal distance between them, when the far point is
+/// farther from the camera and not higher than the rim (a rising far side is a wall the step
+/// test sees).
+pub(crate) fn unseen_gap(upper: &EdgePixel, lower: &EdgePixel, cam_xy: [f64; 2]) -> Option<f64> {
+    let (EdgePixel::Finite { p_local: far, .. }, EdgePixel::Finite { p_local: rim, .. }) = (upper, lower) else {
+        return None;
+    };
+    let reach = |p: &[f64; 3]| (p[0] - cam_xy[0]).hypot(p[1] - cam_xy[1]);
+    (reach(far) > reach(rim) && far[2] <= rim[2]).then(|| (far[0] - rim[0]).hypot(far[1] - rim[1]))
+}
+
 #[cfg(test)]
 mod tests {
     #![allow(clippy::unwrap_used)]
@@ -101,6 +142,18 @@ mod tests {
         assert_eq!(test_pair(&finite(3.1, [3.1, 0.0, 0.0]), &finite(3.0, [3.0, 0.0, 0.0]), 0.2), None);
         assert_eq!(test_pair(&EdgePixel::Invalid, &finite(3.0, [3.0, 0.0, 0.0]), 0.2), None);
         assert_eq!(test_pair(&finite(3.0, [3.0, 0.0, 0.0]), &EdgePixel::Invalid, 0.2), None);
+    }
+
+    #[test]
+    fn a_far_point_lower_than_the_rim_by_more_than_the_step_is_a_hidden_drop() {
+        let rim = finite(3.0, [3.0, 0.0, 0.0]);
+        let floor = finite(4.6, [4.5, 0.0, -0.4]);
+        assert_eq!(hidden_drop(&floor, &rim, 0.2, [0.0, 0.0], |_| 0.15), Some(0.4));
+        // Less than the step, nearer than the rim, or no jump: none.
+        assert_eq!(hidden_drop(&finite(4.6, [4.5, 0.0, -0.1]), &rim, 0.2, [0.0, 0.0], |_| 0.15), None);
+        assert_eq!(hidden_drop(&floor, &rim, 0.2, [10.0, 0.0], |_| 0.15), None);
+        assert_eq!(hidden_drop(&finite(3.1, [3.1, 0.0, -0.4]), &rim, 0.2, [0.0, 0.0], |_| 0.15), None);
+        assert_eq!(hidden_drop(&EdgePixel::Invalid, &rim, 0.2, [0.0, 0.0], |_| 0.15), None);
     }
 
     #[test]

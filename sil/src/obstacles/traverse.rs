@@ -1,0 +1,427 @@
+//! Navigation's metric: does the hazard reach the rover's rolling local obstacle map before the
+//! rover is within stopping distance of it?
+//!
+//! **The drive.** The rover drives straight at each target (a rock taller than `h_max`, or an
+//! edge section of a negative obstacle) at [`DriveModel::speed_mps`] on a path whose body stays
+//! on free ground, from [`TraverseOptions::start_m`] to the stopping distance, measured from the
+//! chassis front to the nearest point of the target. Stereo pairs are rendered every
+//! [`TraverseOptions::frame_every_s`] along it with the ground-truth body pose, matched by the
+//! on-board SGM (or, as the classifier's ceiling, taken as the renderer's exact depth),
+//! classified, and blended into a [`LocalObstacleMap`] exactly as the vision process does
+//! ([`onboard::nodes::surroundings`]). The head is pointed by the firmware's own
+//! [`GazePolicy`], run at the vision task's 20 Hz, and moved by the simulator's head model
+//! ([`HeadServo`]); without a policy it stays at the mounted tilt.
+//!
+//! **Found** when, at the moment the front reaches the stopping distance, a hazard cell of the
+//! local map lies within the target's radius plus [`super::MATCHING`]'s tolerance (the planner
+//! reads the map then); also reported: marked at any frame before, and from how far first.
+//!
+//! **Precision** of the map at that moment: a hazard cell is right when it lies within the
+//! tolerance of any listed hazard of the world (rocks taller than `h_max`, negative-obstacle
+//! edge discs) or its 5 × 5 window of true heights spans more than `h_max` (a true terrain step;
+//! see the module documentation of [`super`]).
+
+use eval::map::TrueObstacle;
+use hal::sensor::HeadTarget;
+use nalgebra::{Isometry3, Point2};
+use onboard::nodes::gaze::{GazeOptions, GazePolicy};
+use sim::head_servo::HeadServo;
+use sim::render::Renderer;
+use sim::world::{ObstacleMap, World};
+use vision::obstacles::{LocalObstacleMap, ObstacleClassifier, ObstacleConfig, PixelLabels};
+use vision::{DepthOptions, DepthPipeline, SpeckleFilter, StereoGeometry, depth_sgm_config};
+
+use super::viewpoints::{body_pose, next_unit, view_on_terrain};
+use super::{Aim, EDGE_SECTION_M, EvaluationError, MATCHING, Truth};
+
+/// How the rover drives and stops: the stopping distance is what it covers from the frame that
+/// shows a hazard to standing still.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriveModel {
+    pub speed_mps: f64,
+    pub deceleration_mps2: f64,
+    /// From the capture to the wheels braking: classification, the map's low-pass, the
+    /// planner's cycle and the drive's command latency.
+    pub reaction_s: f64,
+}
+
+impl DriveModel {
+    /// The simulator's rover (0.3 m/s, its planner's speed) braking at 0.1 m/s² after 3.5 s:
+    /// 1.05 m + 0.45 m = 1.5 m.
+    pub const LRU: DriveModel = DriveModel { speed_mps: 0.3, deceleration_mps2: 0.1, reaction_s: 3.5 };
+
+    pub fn stopping_distance_m(&self) -> f64 {
+        self.speed_mps * self.reaction_s + self.speed_mps * self.speed_mps / (2.0 * self.deceleration_mps2)
+    }
+}
+
+/// The chassis front lies this far ahead of the body centre (the sim's chassis box).
+pub const FRONT_M: f64 = 0.5;
+/// The vision task's rate, at which the gaze policy decides.
+const GAZE_TICK_NS: u64 = 50_000_000;
+/// The local map as the vision process keeps it.
+const MAP_SIDE_CELLS: usize = 200;
+const MAP_TIME_CONSTANT_S: f64 = 0.5;
+
+/// One traverse campaign's settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TraverseOptions {
+    pub drive: DriveModel,
+    /// Front-to-target distance where the drive starts (beyond the 4.5 m range cutoff).
+    pub start_m: f64,
+    /// A pair every this long (the camera's 10 Hz pairs, subsampled to keep a campaign short).
+    pub frame_every_s: f64,
+    /// The firmware's gaze policy; `None`: the head stays at `mounted_tilt_rad`.
+    pub gaze: Option<GazeOptions>,
+    pub mounted_tilt_rad: f64,
+    /// Classify the renderer's exact depth instead of SGM's.
+    pub true_depth: bool,
+}
+
+impl Default for TraverseOptions {
+    fn default() -> Self {
+        TraverseOptions {
+            drive: DriveModel::LRU,
+            start_m: 5.5,
+            frame_every_s: 0.4,
+            gaze: Some(GazeOptions::lru()),
+            mounted_tilt_rad: sim::scenario::ROVER_TILT_RAD,
+            true_depth: false,
+        }
+    }
+}
+
+/// A straight drive at one target.
+#[derive(Debug, Clone)]
+pub struct TraversePath {
+    pub aim: Aim,
+    /// Rock height above h_max (rocks only).
+    pub excess_height_m: f64,
+    /// The rock, or the edge discs of the approached section.
+    pub truth: Vec<TrueObstacle>,
+    /// The point driven at, and the heading.
+    pub target_m: Point2<f64>,
+    pub yaw_rad: f64,
+}
+
+/// What one drive found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TraverseOutcome {
+    pub aim: Aim,
+    pub excess_height_m: f64,
+    /// In the local map when the front reached the stopping distance.
+    pub found_at_stop: bool,
+    /// Front-to-target distance of the first frame after which the map held it.
+    pub first_found_m: Option<f64>,
+    pub frames: usize,
+    /// The map's hazard cells at the stop, those on a listed hazard, and those on a listed
+    /// hazard or a true terrain step.
+    pub hazard_cells: usize,
+    pub cells_listed: usize,
+    pub cells_true: usize,
+}
+
+/// The drive's paths: one per rock and per edge target, from the first of 16 bearings
+/// (starting at a random one) whose whole path keeps the body on free ground and the view on
+/// the terrain.
+pub fn traverse_paths(
+    world: &World,
+    truth: &Truth,
+    max_step_m: f64,
+    options: &TraverseOptions,
+    seed: u64,
+) -> Vec<TraversePath> {
+    let free = ObstacleMap::build(&world.terrain);
+    let cam = world.robots[0].model().t_body_cam(0.0, options.mounted_tilt_rad).translation.vector;
+    let stop_m = options.drive.stopping_distance_m();
+    let mut rng = seed ^ 0x7A4E_25E1;
+    let targets = truth.rocks.iter().map(|(o, h)| (Aim::Rock, o.centre_m, vec![*o], h - max_step_m)).chain(
+        truth.edge_targets.iter().map(|p| {
+            let section = truth.edges.iter().filter(|o| (o.centre_m - p).norm() <= EDGE_SECTION_M).copied().collect();
+            (Aim::Edge, *p, section, 0.0)
+        }),
+    );
+    let mut out = Vec::new();
+    for (aim, target, section, excess_height_m) in targets {
+        if section.is_empty() {
+            continue;
+        }
+        let start = std::f64::consts::TAU * next_unit(&mut rng);
+        for k in 0..16 {
+            let yaw = start + k as f64 * std::f64::consts::TAU / 16.0;
+            let path = TraversePath { aim, excess_height_m, truth: section.clone(), target_m: target, yaw_rad: yaw };
+            // The body from the start to a little past the stop, every 0.1 m.
+            let steps = ((options.start_m - stop_m + 0.5) / 0.1).round() as usize;
+            let ok = (0..=steps).all(|i| {
+                let d = options.start_m - 0.1 * i as f64;
+                let body = path.body_xy(d);
+                let (s, c) = yaw.sin_cos();
+                let cam_xy = [body[0] + c * cam.x - s * cam.y, body[1] + s * cam.x + c * cam.y];
+                !free.is_blocked(body) && view_on_terrain(world, cam_xy, yaw)
+            });
+            if ok {
+                out.push(path);
+                break;
+            }
+        }
+    }
+    out
+}
+
+impl TraversePath {
+    /// The body centre when the front is `d` from the target point (along the path).
+    fn body_xy(&self, d: f64) -> [f64; 2] {
+        let (s, c) = self.yaw_rad.sin_cos();
+        let back = d + FRONT_M;
+        [self.target_m.x - c * back, self.target_m.y - s * back]
+    }
+
+    /// Distance from the front at `body` to the nearest point of the target's obstacles.
+    fn front_distance_m(&self, body: [f64; 2]) -> f64 {
+        let (s, c) = self.yaw_rad.sin_cos();
+        let front = Point2::new(body[0] + c * FRONT_M, body[1] + s * FRONT_M);
+        self.truth.iter().map(|o| (o.centre_m - front).norm() - o.radius_m).fold(f64::INFINITY, f64::min).max(0.0)
+    }
+}
+
+/// Renderer, stereo, classifier and local map for the drives in one world.
+#[derive(Debug)]
+pub struct Traverse<'w> {
+    world: &'w World,
+    truth: &'w Truth,
+    config: ObstacleConfig,
+    options: TraverseOptions,
+    renderer: Renderer,
+    stereo: DepthPipeline,
+    left: Vec<u8>,
+    right: Vec<u8>,
+    classifier: ObstacleClassifier,
+    labels: PixelLabels,
+}
+
+impl<'w> Traverse<'w> {
+    /// Drives for the world's first robot with the on-board stereo (SGM configuration, speckle
+    /// filter).
+    pub fn new(
+        world: &'w World,
+        truth: &'w Truth,
+        config: ObstacleConfig,
+        options: TraverseOptions,
+    ) -> Result<Self, EvaluationError> {
+        let camera = world.robots[0].model().camera;
+        let (width, height) = (camera.width_px as usize, camera.height_px as usize);
+        let geometry = StereoGeometry {
+            fx_px: camera.f_px,
+            fy_px: camera.f_px,
+            cx_px: camera.cx_px,
+            cy_px: camera.cy_px,
+            baseline_m: camera.baseline_m,
+        };
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let depth_options = DepthOptions { sgm: depth_sgm_config(), despeckle: false, threads };
+        let mut stereo = DepthPipeline::with_geometry(geometry, width, height, depth_options)?;
+        stereo.set_speckle_filter(Some(SpeckleFilter::for_image(width, height)));
+        Ok(Traverse {
+            world,
+            truth,
+            config,
+            options,
+            renderer: Renderer::new(camera, world.scenario.sensor),
+            stereo,
+            left: vec![0; width * height],
+            right: vec![0; width * height],
+            classifier: ObstacleClassifier::new(config)?,
+            labels: PixelLabels::default(),
+        })
+    }
+
+    /// Drives `path` (pair `i` rendered with noise seed `noise_seed + i`).
+    pub fn drive(&mut self, path: &TraversePath, noise_seed: u64) -> Result<TraverseOutcome, EvaluationError> {
+        let o = self.options;
+        let model = self.world.robots[0].model();
+        let stop_m = o.drive.stopping_distance_m();
+        let mut map = LocalObstacleMap::new(self.config.cell_size_m, MAP_SIDE_CELLS, MAP_TIME_CONSTANT_S);
+        let mut policy = o.gaze.map(GazePolicy::new);
+        let mounted = (0.0, o.mounted_tilt_rad);
+        let hold = HeadTarget { stamp_ns: 0, pan_rad: 0.0, tilt_rad: o.mounted_tilt_rad, max_rate_radps: 1.0 };
+        let mut head = model.head.map(|limits| HeadServo::new(limits, mounted, 0, hold));
+        let frame_ns = (o.frame_every_s * 1e9).round().max(1.0) as u64;
+        let mut outcome = TraverseOutcome {
+            aim: path.aim,
+            excess_height_m: path.excess_height_m,
+            found_at_stop: false,
+            first_found_m: None,
+            frames: 0,
+            hazard_cells: 0,
+            cells_listed: 0,
+            cells_true: 0,
+        };
+        let mut tick_ns = 0;
+        for frame in 0.. {
+            let t_ns = frame as u64 * frame_ns;
+            let travelled_m = o.drive.speed_mps * t_ns as f64 * 1e-9;
+            let body = path.body_xy(o.start_m - travelled_m);
+            if path.front_distance_m(body) < stop_m {
+                break;
+            }
+            // The policy decides at the vision task's rate up to the capture.
+            while tick_ns <= t_ns {
+                if let (Some(policy), Some(head)) = (policy.as_mut(), head.as_mut())
+                    && let Some(target) = policy.update(tick_ns, o.drive.speed_mps, 0.0)
+                {
+                    head.command(HeadTarget {
+                        stamp_ns: tick_ns,
+                        pan_rad: target.pan_rad,
+                        tilt_rad: target.tilt_rad,
+                        max_rate_radps: target.max_rate_radps,
+                    });
+                }
+                tick_ns += GAZE_TICK_NS;
+            }
+            let (pan, tilt) = head.as_mut().map_or(mounted, |h| h.angles_at(t_ns));
+            let Some(t_world_body) = body_pose(self.world, body[0], body[1], path.yaw_rad) else {
+                continue;
+            };
+            let t_world_cam = t_world_body * model.t_body_cam(pan, tilt);
+            self.classify(&t_world_cam, noise_seed + frame as u64)?;
+            let p = t_world_body.translation.vector;
+            map.recentre(p.x, p.y);
+            map.integrate(self.classifier.height_map(), t_ns);
+            outcome.frames += 1;
+            if outcome.first_found_m.is_none() && marks(&map, &path.truth) {
+                outcome.first_found_m = Some(path.front_distance_m(body));
+            }
+        }
+        outcome.found_at_stop = marks(&map, &path.truth);
+        self.score_cells(&map, &mut outcome);
+        Ok(outcome)
+    }
+
+    fn classify(&mut self, t_world_cam: &Isometry3<f64>, noise_seed: u64) -> Result<(), EvaluationError> {
+        let scene = self.world.scene(&[]);
+        self.renderer.render_stereo(&scene, t_world_cam, noise_seed, &mut self.left, &mut self.right);
+        self.stereo.compute(&self.left, &self.right)?;
+        if self.options.true_depth {
+            self.stereo.depth_mut().depth_m.copy_from_slice(self.renderer.depth_m());
+        }
+        self.classifier.classify(self.stereo.depth(), self.stereo.geometry(), t_world_cam, &mut self.labels);
+        Ok(())
+    }
+
+    /// Precision of the map's hazard cells (see the module documentation).
+    fn score_cells(&self, map: &LocalObstacleMap, outcome: &mut TraverseOutcome) {
+        let cell = map.cell_size_m();
+        let hf = &self.world.terrain.heightfield;
+        let listed = |c: Point2<f64>| {
+            self.truth
+                .rocks
+                .iter()
+                .map(|(o, _)| o)
+                .chain(&self.truth.edges)
+                .any(|o| (o.centre_m - c).norm() <= o.radius_m + MATCHING.tolerance_m)
+        };
+        let half = (self.config.window_cells as i64 - 1) / 2;
+        let high = self.config.window_cells as i64 - 1 - half;
+        let true_step = |i: i64, j: i64| {
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for dj in -half..=high {
+                for di in -half..=high {
+                    let x = (i + di) as f64 * cell + 0.5 * cell;
+                    let y = (j + dj) as f64 * cell + 0.5 * cell;
+                    if let Some(z) = hf.height_at(x, y) {
+                        lo = lo.min(z);
+                        hi = hi.max(z);
+                    }
+                }
+            }
+            hi - lo > self.config.max_step_m
+        };
+        for (i, j) in map.hazard_cells() {
+            let centre = Point2::new((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
+            outcome.hazard_cells += 1;
+            if listed(centre) {
+                outcome.cells_listed += 1;
+                outcome.cells_true += 1;
+            } else if true_step(i, j) {
+                outcome.cells_true += 1;
+            }
+        }
+    }
+}
+
+/// Whether a hazard cell of `map` lies on one of `truth` (within the matching tolerance).
+fn marks(map: &LocalObstacleMap, truth: &[TrueObstacle]) -> bool {
+    let cell = map.cell_size_m();
+    map.hazard_cells().any(|(i, j)| {
+        let c = Point2::new((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
+        truth.iter().any(|o| (o.centre_m - c).norm() <= o.radius_m + MATCHING.tolerance_m)
+    })
+}
+
+/// Sums over drives.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TraverseTally {
+    /// Rocks at least 0.05 m above h_max, all rocks above h_max, edge sections: (driven, found
+    /// at the stop).
+    pub rocks_clear: (usize, usize),
+    pub rocks: (usize, usize),
+    pub edges: (usize, usize),
+    /// Found at any frame before the stop.
+    pub rocks_any: usize,
+    pub edges_any: usize,
+    pub frames: usize,
+    pub hazard_cells: usize,
+    pub cells_listed: usize,
+    pub cells_true: usize,
+}
+
+/// Rocks this much above h_max must all be found.
+pub const CLEAR_EXCESS_M: f64 = 0.05;
+
+impl TraverseTally {
+    pub fn add(&mut self, o: &TraverseOutcome) {
+        let hit = usize::from(o.found_at_stop);
+        let any = usize::from(o.first_found_m.is_some());
+        match o.aim {
+            Aim::Rock => {
+                self.rocks.0 += 1;
+                self.rocks.1 += hit;
+                self.rocks_any += any;
+                if o.excess_height_m >= CLEAR_EXCESS_M {
+                    self.rocks_clear.0 += 1;
+                    self.rocks_clear.1 += hit;
+                }
+            }
+            Aim::Edge | Aim::Open => {
+                self.edges.0 += 1;
+                self.edges.1 += hit;
+                self.edges_any += any;
+            }
+        }
+        self.frames += o.frames;
+        self.hazard_cells += o.hazard_cells;
+        self.cells_listed += o.cells_listed;
+        self.cells_true += o.cells_true;
+    }
+
+    pub fn merge(&mut self, other: &TraverseTally) {
+        let pair = |a: &mut (usize, usize), b: (usize, usize)| {
+            a.0 += b.0;
+            a.1 += b.1;
+        };
+        pair(&mut self.rocks_clear, other.rocks_clear);
+        pair(&mut self.rocks, other.rocks);
+        pair(&mut self.edges, other.edges);
+        self.rocks_any += other.rocks_any;
+        self.edges_any += other.edges_any;
+        self.frames += other.frames;
+        self.hazard_cells += other.hazard_cells;
+        self.cells_listed += other.cells_listed;
+        self.cells_true += other.cells_true;
+    }
+
+    /// Hazard cells on a listed hazard or a true step, of all hazard cells.
+    pub fn precision(&self) -> Option<f64> {
+        super::ratio(self.cells_true, self.hazard_cells)
+    }
+}
