@@ -88,6 +88,7 @@ fn view(size: &Size) -> TeamView {
                 t_ref_body: Some(Isometry3::new(Vector3::new(last[0], last[1], 0.0), Vector3::new(0.0, 0.0, k))),
                 position_cov_xy_m2: Some(Matrix2::new(0.5, 0.1, 0.1, 0.3)),
                 submaps,
+                hazards: None,
             },
         );
     }

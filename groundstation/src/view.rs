@@ -44,6 +44,27 @@ pub struct SubmapOutline {
     pub bounds_submap_m: Option<[f64; 4]>,
 }
 
+/// A robot's latest hazard cells (its local obstacle map, as its comms coarsened it), placed in
+/// the reference frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HazardView {
+    /// Ground receive time of the message (mission clock, ns).
+    pub received_ns: u64,
+    /// Robot time of the body pose the cells are relative to, ns.
+    pub stamp_ns: u64,
+    /// Edge of a cell, m.
+    pub cell_m: f64,
+    /// Yaw of the cells' lattice in the reference frame (the body's heading), rad.
+    pub yaw_ref_rad: f64,
+    /// Cell centres in the reference frame, m, the nearest to the robot first.
+    pub cells_ref_m: Vec<[f64; 2]>,
+    /// Hazard cells the robot left out, the farthest (`protocol::message::HazardCells::omitted`).
+    pub omitted: u16,
+    /// Placed with the body pose the message carries; `false`: that pose's submap is not placed
+    /// yet, and the robot's latest pose stood in for it.
+    pub exact: bool,
+}
+
 /// One robot as the operator sees it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RobotView {
@@ -69,6 +90,8 @@ pub struct RobotView {
     /// xy position covariance of the latest pose in the reference frame, m².
     pub position_cov_xy_m2: Option<Matrix2<f64>>,
     pub submaps: Vec<SubmapOutline>,
+    /// The latest hazard cells (`None`: none received, or the robot is not connected).
+    pub hazards: Option<HazardView>,
 }
 
 /// What connects two places on the map.

@@ -45,6 +45,7 @@ fn view() -> TeamView {
         t_ref_body: None,
         position_cov_xy_m2: None,
         submaps: vec![],
+        hazards: None,
     };
     TeamView {
         now_ns: 2_000_000_000,

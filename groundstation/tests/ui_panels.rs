@@ -57,6 +57,7 @@ fn robot(id: u8, staleness: Staleness, last_message_ns: u64, mode: Mode) -> Robo
             t_ref_submap: Isometry3::new(Vector3::new(f64::from(id) * 5.0, 0.0, 0.0), Vector3::new(0.0, 0.0, 0.3)),
             bounds_submap_m: Some([-5.0, -5.0, 15.0, 5.0]),
         }],
+        hazards: None,
     }
 }
 

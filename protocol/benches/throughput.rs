@@ -157,6 +157,7 @@ fn bare_postcard(messages: &[AnyMessage], _key: &AuthKey) -> Vec<AnyMessage> {
             Ack,
             PoseEstimate,
             Telemetry,
+            HazardCells,
             Constraint,
             MatchAttempt,
             SubmapHeader,

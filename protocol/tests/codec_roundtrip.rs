@@ -124,3 +124,63 @@ proptest! {
         }
     }
 }
+
+proptest! {
+    #[test]
+    fn hazard_cells_round_trip(hazards in common::hazard_cells(), seq in any::<u32>()) {
+        let message = AnyMessage::from(hazards);
+        let mut buf = [0u8; MAX_PACKET_BYTES];
+        let len = encode_any(&message, seq, &mut buf);
+        prop_assert!(!packet_is_reliable(&buf[..len]), "latest wins");
+        prop_assert_eq!(&decode(&buf[..len]).map_err(|e| TestCaseError::fail(format!("{e}")))?.message, &message);
+    }
+}
+
+fn packet_is_reliable(packet: &[u8]) -> bool {
+    packet[3] & protocol::codec::Flags::RELIABLE != 0
+}
+
+#[test]
+fn hazard_cells_encoding_is_stable_and_overlong_lists_are_refused() {
+    use protocol::message::{HAZARD_CELLS_MAX, HazardCells};
+    let mut cells = heapless::Vec::new();
+    cells.extend_from_slice(&[[1, -2], [-128, 127]]).unwrap();
+    let hazards = HazardCells {
+        robot: protocol::RobotId(2),
+        stamp_ns: 5,
+        submap: protocol::SubmapId { robot: protocol::RobotId(2), index: 1 },
+        t_submap_body: protocol::Pose3::IDENTITY,
+        cell_size_m: 0.5,
+        omitted: 3,
+        cells,
+    };
+    assert!(hazards.is_valid());
+    let message = AnyMessage::from(hazards.clone());
+    let mut buf = [0u8; 128];
+    let len = protocol::encode(&message, NodeId(2), NodeId::GROUND, 1, &mut buf).unwrap();
+    // protocol, key, version, flags (latest wins), source, destination, seq | robot, stamp,
+    // submap (robot, index), pose (7 × f64 LE), cell size (f32 LE), omitted, cells (len, i8 pairs)
+    let mut want = vec![1, 0x12, 1, 0x00, 2, 0xF0, 1, 2, 5, 2, 1];
+    for v in [0.0f64, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0] {
+        want.extend_from_slice(&v.to_le_bytes());
+    }
+    want.extend_from_slice(&0.5f32.to_le_bytes());
+    want.extend_from_slice(&[3, 2, 1, 0xFE, 0x80, 0x7F]);
+    assert_eq!(&buf[..len], &want[..]);
+    assert_eq!(decode(&buf[..len]).unwrap().message, message);
+
+    // A list longer than the type's bound is a typed error, not a panic or a truncation.
+    let mut long = want[..want.len() - 5].to_vec();
+    long.extend_from_slice(&[0x81, 0x02]); // varint 257
+    long.extend(std::iter::repeat_n(0u8, 2 * (HAZARD_CELLS_MAX + 1)));
+    assert_eq!(decode(&long), Err(DecodeError::MalformedBody { key: 0x12 }));
+
+    // Decoders accept any floats; consumers check before placing the cells.
+    let bad_size = HazardCells { cell_size_m: f32::NAN, ..hazards.clone() };
+    assert!(!bad_size.is_valid());
+    let bad_pose = HazardCells {
+        t_submap_body: protocol::Pose3 { translation_m: [0.0; 3], rotation_wxyz: [2.0, 0.0, 0.0, 0.0] },
+        ..hazards
+    };
+    assert!(!bad_pose.is_valid());
+}

@@ -3,7 +3,8 @@
 
 use postcard::experimental::max_size::MaxSize;
 use protocol::codec::HEADER_MAX_BYTES;
-use protocol::frame::datagram::{FRAGMENT_HEADER_BYTES, MAX_DATAGRAM_BYTES};
+use protocol::frame::Framing;
+use protocol::frame::datagram::{FRAGMENT_HEADER_BYTES, IP_UDP_HEADER_BYTES, MAX_DATAGRAM_BYTES};
 use protocol::message::*;
 use protocol::{MAX_PACKET_BYTES, NodeId, RobotId, SubmapId};
 
@@ -14,6 +15,7 @@ const BUDGETS: &[(&str, usize, usize)] = &[
     ("Ack", Ack::POSTCARD_MAX_SIZE, 16),
     ("PoseEstimate", PoseEstimate::POSTCARD_MAX_SIZE, 160),
     ("Telemetry", Telemetry::POSTCARD_MAX_SIZE, 1024),
+    ("HazardCells", HazardCells::POSTCARD_MAX_SIZE, 600),
     ("Constraint", Constraint::POSTCARD_MAX_SIZE, 192),
     ("MatchAttempt", MatchAttempt::POSTCARD_MAX_SIZE, 24),
     ("SubmapHeader", SubmapHeader::POSTCARD_MAX_SIZE, 192),
@@ -109,9 +111,41 @@ fn largest_telemetry() -> Telemetry {
     telemetry
 }
 
+fn largest_hazard_cells() -> HazardCells {
+    let mut cells = heapless::Vec::new();
+    while cells.push([i8::MIN, i8::MAX]).is_ok() {}
+    HazardCells {
+        robot: RobotId(255),
+        stamp_ns: u64::MAX,
+        submap: SubmapId { robot: RobotId(255), index: u32::MAX },
+        t_submap_body: protocol::Pose3 { translation_m: [f64::MAX; 3], rotation_wxyz: [1.0, 0.0, 0.0, 0.0] },
+        cell_size_m: 0.1,
+        omitted: u16::MAX,
+        cells,
+    }
+}
+
+#[test]
+fn hazard_cells_are_a_small_share_of_a_serial_radio() {
+    // Sent every 2 s on a ground link that may be a shared 57.6 kbit/s serial radio (7200 B/s):
+    // the largest one, framed, must stay a small share of it, and fit one UDP datagram.
+    let mut buf = [0u8; MAX_PACKET_BYTES];
+    let message = AnyMessage::from(largest_hazard_cells());
+    let len = protocol::encode(&message, NodeId(200), NodeId::GROUND, u32::MAX, &mut buf).unwrap();
+    assert!(len <= HEADER_MAX_BYTES + HazardCells::POSTCARD_MAX_SIZE);
+    let serial = Framing::Stream.wire_bytes(len);
+    assert!(serial <= 620, "{serial} B on a serial radio");
+    let one_datagram = len + FRAGMENT_HEADER_BYTES + IP_UDP_HEADER_BYTES;
+    assert_eq!(Framing::Datagram { mtu: MAX_DATAGRAM_BYTES as u16 }.wire_bytes(len), one_datagram);
+    // A hazard packet every 2 s is under 5 % of the serial radio.
+    assert!(serial as f64 / 2.0 / 7200.0 < 0.05);
+}
+
 #[test]
 fn the_largest_messages_reach_but_do_not_exceed_their_bound() {
     let mut buf = [0u8; 2 * MAX_PACKET_BYTES];
+    let hazards = postcard::to_slice(&largest_hazard_cells(), &mut buf).unwrap().len();
+    assert_eq!(hazards, HazardCells::POSTCARD_MAX_SIZE);
     let chunk = postcard::to_slice(&largest_chunk(), &mut buf).unwrap().len();
     assert_eq!(chunk, SubmapChunk::POSTCARD_MAX_SIZE);
     let telemetry = postcard::to_slice(&largest_telemetry(), &mut buf).unwrap().len();

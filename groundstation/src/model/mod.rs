@@ -18,7 +18,10 @@
 //!   finished) provisionally from the robot's last pose in the previous submap and first pose in
 //!   this one. Trajectories are the received poses at their submap origins.
 //! - Map: see [`map`].
+//! - Hazards: each robot's latest hazard cells, placed with the message's own body pose through
+//!   the same submap origins as the trajectory (see [`hazards`]).
 
+pub mod hazards;
 pub mod link;
 pub mod map;
 
@@ -32,7 +35,7 @@ use protocol::codec::decode_header;
 use protocol::delivery::{DEFAULT_WINDOW, Delivered, Endpoint, EndpointConfig, RtoConfig};
 use protocol::frame::Framing;
 use protocol::message::{
-    Command, CommandAck, CommandKind, ConstraintKind, PoseEstimate, SubmapChunk, SubmapHeader, Telemetry,
+    Command, CommandAck, CommandKind, ConstraintKind, HazardCells, PoseEstimate, SubmapChunk, SubmapHeader, Telemetry,
 };
 use protocol::{AnyMessage, AuthKey, MAX_PACKET_BYTES, MessageKey, NodeId, NodeRef, Priority, RobotId};
 
@@ -40,6 +43,7 @@ use crate::view::{
     CommandState, CommandView, EdgeKind, EdgeView, LOST_AFTER_NS, RobotView, STALE_AFTER_NS, Staleness, SubmapOutline,
     TeamView, UiAction,
 };
+use hazards::ReceivedHazards;
 use link::{LinkAccumulator, LinkState};
 use map::{MapComposer, Placed, Tile};
 
@@ -118,6 +122,8 @@ struct RobotState {
     poses: Vec<StoredPose>,
     /// Cumulative tx bytes per message key at the previous telemetry.
     class_tx: BTreeMap<u8, u64>,
+    /// The latest hazard cells received (latest wins, as on the link).
+    hazards: Option<ReceivedHazards>,
 }
 
 impl RobotState {
@@ -140,9 +146,11 @@ impl RobotState {
                 t_ref_body: None,
                 position_cov_xy_m2: None,
                 submaps: Vec::new(),
+                hazards: None,
             },
             poses: Vec::new(),
             class_tx: BTreeMap::new(),
+            hazards: None,
         }
     }
 }
@@ -481,6 +489,7 @@ impl TeamModel {
         match delivered.message {
             AnyMessage::Telemetry(t) => self.on_telemetry(recv_ns, t),
             AnyMessage::PoseEstimate(p) => self.on_pose(p),
+            AnyMessage::HazardCells(h) => self.on_hazards(recv_ns, &h),
             AnyMessage::SubmapHeader(h) => self.on_submap_header(h),
             AnyMessage::SubmapChunk(c) => self.on_submap_chunk(c),
             AnyMessage::Constraint(c) => match wire::constraint_measurement(&c) {
@@ -564,6 +573,13 @@ impl TeamModel {
             robot.poses.remove(0);
         }
         self.graph.insert(Measurement::FilterPose(fp));
+    }
+
+    fn on_hazards(&mut self, recv_ns: u64, h: &HazardCells) {
+        match ReceivedHazards::from_message(recv_ns, h) {
+            Some(kept) => self.robot(h.robot.0).hazards = Some(kept),
+            None => self.counters.messages_rejected += 1,
+        }
     }
 
     fn on_submap_header(&mut self, h: SubmapHeader) {
@@ -946,6 +962,14 @@ impl TeamModel {
                 }
             }
             v.t_ref_body = latest.map(|(t, _, _)| t);
+            // Not connected: no pose in this frame, so nothing to place the cells with.
+            v.hazards = state.hazards.as_ref().filter(|_| v.connected).and_then(|h| {
+                match origins.get(&(robot, h.submap)) {
+                    Some(origin) => Some(h.place(&(origin * h.t_submap_body), true)),
+                    // The message's submap is not placed yet (no pose of it has arrived).
+                    None => v.t_ref_body.map(|t| h.place(&t, false)),
+                }
+            });
             v.position_cov_xy_m2 = latest.map(|(_, r, c)| {
                 let c = r * c * r.transpose();
                 Matrix2::new(c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)])

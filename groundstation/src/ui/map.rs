@@ -1,8 +1,9 @@
 //! The top-down map: the height grid as one texture, trajectories, poses with their 2σ
-//! ellipses, submap outlines, loop-closure edges; pan, zoom, follow, and the waypoint click.
+//! ellipses, submap outlines, loop-closure edges, the robots' live hazard cells (a layer the
+//! toolbar's "hazards" box switches); pan, zoom, follow, and the waypoint click.
 
 use egui::{
-    Align2, Color32, ColorImage, FontId, Painter, Pos2, Rect, Role, Sense, Shape, Stroke, TextureHandle,
+    Align2, Color32, ColorImage, FontId, Mesh, Painter, Pos2, Rect, Role, Sense, Shape, Stroke, TextureHandle,
     TextureOptions, Ui, Vec2, WidgetInfo, pos2, vec2,
 };
 use nalgebra::{Matrix2, Point3, SymmetricEigen, Vector3};
@@ -10,7 +11,7 @@ use nalgebra::{Matrix2, Point3, SymmetricEigen, Vector3};
 use super::UiState;
 use super::palette::{self, robot_colour};
 use super::transform::{MapTransform, scale_bar_m};
-use crate::view::{EdgeKind, HeightGrid, RobotView, TeamView, UiAction};
+use crate::view::{EdgeKind, HazardView, HeightGrid, RobotView, TeamView, UiAction};
 
 /// Accessible name of the map canvas (tests find it by this label).
 pub const MAP_LABEL: &str = "Map view";
@@ -21,6 +22,23 @@ const MIN_STEP_PX: f32 = 1.5;
 /// Fitting never zooms in further than this many metres across: a robot that has barely moved
 /// is not blown up to fill the screen.
 const MIN_FIT_SPAN_M: f64 = 10.0;
+/// Hazard cells are drawn at least this wide, so a 0.1 m cell stays visible zoomed out.
+pub const MIN_HAZARD_CELL_PX: f32 = 3.0;
+/// Hazard cells received longer ago than this are drawn faded ([`palette::HAZARD_OLD`]): the
+/// robots send them every 2 s, so three missed pictures.
+pub const HAZARD_FRESH_NS: u64 = 6_000_000_000;
+
+/// Which optional layers the map draws.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MapLayers {
+    pub hazards: bool,
+}
+
+impl Default for MapLayers {
+    fn default() -> Self {
+        MapLayers { hazards: true }
+    }
+}
 
 /// `bounds` (`[min_x, min_y, max_x, max_y]`) grown about its centre to at least `span_m` per side.
 fn at_least(bounds: [f64; 4], span_m: f64) -> [f64; 4] {
@@ -43,6 +61,7 @@ pub struct MapState {
     /// The operator placed the camera (pan, zoom, `set_view`); until then, and again after
     /// "Fit all", the camera keeps fitting the content as the team's map grows.
     user_camera: bool,
+    pub layers: MapLayers,
     texture: Option<GridTexture>,
     last_transform: Option<MapTransform>,
     /// How many times the grid texture was (re)built, for tests and the frame-time budget.
@@ -54,6 +73,7 @@ impl std::fmt::Debug for MapState {
         f.debug_struct("MapState")
             .field("view", &self.view)
             .field("follow", &self.follow)
+            .field("layers", &self.layers)
             .field("texture_revision", &self.texture.as_ref().map(|t| t.revision))
             .field("texture_uploads", &self.texture_uploads)
             .finish()
@@ -158,6 +178,11 @@ pub fn show(ui: &mut Ui, view: &TeamView, state: &mut UiState, actions: &mut Vec
         draw_submaps(&painter, &t, robot);
     }
     draw_edges(&painter, &t, view);
+    if state.map.layers.hazards {
+        for robot in view.robots.values() {
+            draw_hazards(&painter, &t, robot, view.now_ns);
+        }
+    }
     for robot in view.robots.values() {
         draw_robot(&painter, &t, robot);
     }
@@ -179,6 +204,8 @@ fn toolbar(ui: &mut Ui, view: &TeamView, state: &mut UiState) {
                 }
             }
         });
+        ui.checkbox(&mut state.map.layers.hazards, "hazards")
+            .on_hover_text("the robots' latest hazard cells (0.1 m, the nearest 256 each), faded when old");
         if state.waypoint_armed
             && let Some(r) = state.target_robot
         {
@@ -402,6 +429,42 @@ fn draw_robot(painter: &Painter, t: &MapTransform, robot: &RobotView) {
     painter.text(centre + vec2(10.0, 10.0), Align2::LEFT_TOP, robot.robot.to_string(), FontId::monospace(12.0), colour);
 }
 
+/// Screen corners of each hazard cell (squares turned with the body's heading, at least
+/// [`MIN_HAZARD_CELL_PX`] wide), skipping those off the screen.
+pub fn hazard_quads(hazards: &HazardView, t: &MapTransform) -> Vec<[Pos2; 4]> {
+    let half_px = (0.5 * hazards.cell_m * t.px_per_m).max(0.5 * f64::from(MIN_HAZARD_CELL_PX)) as f32;
+    let (sin, cos) = (hazards.yaw_ref_rad.sin() as f32, hazards.yaw_ref_rad.cos() as f32);
+    // The lattice's axes on the screen (y points down).
+    let (ex, ey) = (vec2(cos, -sin) * half_px, vec2(-sin, -cos) * half_px);
+    let visible = t.screen_rect.expand(2.0 * half_px);
+    hazards
+        .cells_ref_m
+        .iter()
+        .map(|c| t.world_to_screen(c[0], c[1]))
+        .filter(|centre| visible.contains(*centre))
+        .map(|c| [c - ex - ey, c + ex - ey, c + ex + ey, c - ex + ey])
+        .collect()
+}
+
+fn draw_hazards(painter: &Painter, t: &MapTransform, robot: &RobotView, now_ns: u64) {
+    let Some(hazards) = robot.hazards.as_ref().filter(|_| robot.connected) else { return };
+    let fresh = now_ns.saturating_sub(hazards.received_ns) <= HAZARD_FRESH_NS;
+    let colour = if fresh { palette::HAZARD } else { palette::HAZARD_OLD };
+    // One mesh per robot: 256 cells are 1024 vertices, not 256 shapes.
+    let mut mesh = Mesh::default();
+    for quad in hazard_quads(hazards, t) {
+        let first = mesh.vertices.len() as u32;
+        for corner in quad {
+            mesh.colored_vertex(corner, colour);
+        }
+        mesh.add_triangle(first, first + 1, first + 2);
+        mesh.add_triangle(first, first + 2, first + 3);
+    }
+    if !mesh.is_empty() {
+        painter.add(Shape::mesh(mesh));
+    }
+}
+
 fn draw_submaps(painter: &Painter, t: &MapTransform, robot: &RobotView) {
     if !robot.connected {
         return;
@@ -461,6 +524,19 @@ fn draw_overlay_text(painter: &Painter, t: &MapTransform, view: &TeamView, state
     let hidden: Vec<String> = view.robots.values().filter(|r| !r.connected).map(|r| r.robot.to_string()).collect();
     if !hidden.is_empty() {
         lines.push(format!("not in this frame: robot {}", hidden.join(", ")));
+    }
+    if state.map.layers.hazards {
+        for robot in view.robots.values().filter(|r| r.connected) {
+            let Some(h) = &robot.hazards else { continue };
+            let age_s = view.now_ns.saturating_sub(h.received_ns) as f64 * 1e-9;
+            let more = if h.omitted > 0 { format!(" (+{} far)", h.omitted) } else { String::new() };
+            let placed = if h.exact { "" } else { ", at its latest pose" };
+            lines.push(format!(
+                "robot {}: {} hazard cells{more}, {age_s:.0} s old{placed}",
+                robot.robot,
+                h.cells_ref_m.len()
+            ));
+        }
     }
     if view.map.is_none() && view.robots.is_empty() {
         lines.push("waiting for data".to_owned());

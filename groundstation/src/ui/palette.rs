@@ -9,6 +9,11 @@ pub const LOST: Color32 = Color32::from_rgb(240, 60, 60);
 pub const GOOD: Color32 = Color32::from_rgb(90, 200, 110);
 pub const DETECTION_EDGE: Color32 = Color32::from_rgb(255, 150, 40);
 pub const MATCH_EDGE: Color32 = Color32::from_rgb(80, 220, 240);
+/// The robots' live hazard cells on the map: a warning orange that none of the robots, the
+/// edges or the height ramp uses, apart from the composed map's red obstacles.
+pub const HAZARD: Color32 = Color32::from_rgb(255, 100, 20);
+/// Hazard cells older than [`crate::ui::map::HAZARD_FRESH_NS`]: the same colour, faded.
+pub const HAZARD_OLD: Color32 = Color32::from_rgba_premultiplied(102, 40, 8, 102);
 
 /// Distinct, saturated colours that stay readable on the height ramp.
 const ROBOT_COLOURS: [Color32; 8] = [

@@ -299,3 +299,66 @@ fn the_ground_key_file_and_rate_are_validated_with_the_configuration() {
     assert!(error.to_string().contains("link.ground_bandwidth_bytes_per_s"), "{error}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+fn hazards_msg(stamp_ns: u64, cells: &[[i16; 2]]) -> Box<msgs::HazardCellsMsg> {
+    let mut msg = Box::new(msgs::HazardCellsMsg {
+        stamp_ns,
+        t_local_body: Pose { translation_m: [0.01, 0.01, 0.0], rotation_wxyz: [1.0, 0.0, 0.0, 0.0] },
+        frame_id: 2,
+        cell_size_m: 0.05,
+        origin_cell: [0, 0],
+        count: cells.len() as u32,
+        omitted: 0,
+        cells: [[0; 2]; msgs::HAZARD_CELLS_MAX],
+    });
+    msg.cells[..cells.len()].copy_from_slice(cells);
+    msg
+}
+
+fn hazards_sent(node: &mut CommsNode, now_ns: u64, team: &mut Vec<AnyMessage>) -> Vec<HazardCells> {
+    node.on_tick(now_ns, &mut Sink).unwrap();
+    while let Some(packet) = node.poll_transmit_on(now_ns, TEAM) {
+        team.push(protocol::decode(packet).unwrap().message);
+    }
+    ground_output(node, now_ns)
+        .into_iter()
+        .filter_map(|m| match m {
+            AnyMessage::HazardCells(h) => Some(h),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn hazard_cells_go_to_the_ground_at_most_once_per_period_newest_first() {
+    let mut node = node();
+    assert!(node.subscriptions().contains(&onboard::nodes::Topic::Hazards));
+    let s = 1_000_000_000;
+    let mut team = Vec::new();
+    // Two fine cells 1 m ahead that merge into one wire cell, one 0.5 m to the left.
+    let first = hazards_msg(s, &[[20, 0], [19, 0], [0, 10]]);
+    node.on_message(Message::Hazards(&first), &mut Sink).unwrap();
+    let sent = hazards_sent(&mut node, s, &mut team);
+    assert_eq!(sent.len(), 1);
+    assert_eq!((sent[0].robot, sent[0].stamp_ns, sent[0].submap.index), (RobotId(1), s, 2));
+    assert_eq!(sent[0].cells.as_slice(), &[[0, 5], [10, 0]]);
+
+    // Within the 2 s period nothing goes, and a newer picture replaces the waiting one.
+    for (t, stamp) in [(s + s / 2, 1), (2 * s, 2), (2 * s + s / 2, 3)] {
+        node.on_message(Message::Hazards(&hazards_msg(stamp, &[[stamp as i16, 0]])), &mut Sink).unwrap();
+        assert!(hazards_sent(&mut node, t, &mut team).is_empty(), "at {t} ns");
+    }
+    let sent = hazards_sent(&mut node, 3 * s, &mut team);
+    assert_eq!(sent.iter().map(|h| h.stamp_ns).collect::<Vec<_>>(), [3]);
+    // Nothing new, nothing sent; the team link never carries them.
+    assert!(hazards_sent(&mut node, 6 * s, &mut team).is_empty());
+    assert!(!team.is_empty() && !team.iter().any(|m| matches!(m, AnyMessage::HazardCells(_))));
+
+    // A picture without a pose is counted, not sent.
+    let mut broken = hazards_msg(7 * s, &[[1, 1]]);
+    broken.t_local_body.rotation_wxyz = [0.0; 4];
+    node.on_message(Message::Hazards(&broken), &mut Sink).unwrap();
+    assert!(hazards_sent(&mut node, 7 * s, &mut team).is_empty());
+    assert_eq!(node.stats().hazard_rejections, 1);
+    assert_eq!(node.stats().ground_sent_by_class["HazardCells"].packets, 2);
+}

@@ -1,6 +1,7 @@
 //! Every message type, its stable key, version, delivery class and priority.
 
 pub mod command;
+pub mod hazards;
 pub mod mapping;
 pub mod state;
 pub mod transport;
@@ -9,6 +10,7 @@ use postcard::experimental::max_size::MaxSize;
 use serde::{Serialize, de::DeserializeOwned};
 
 pub use command::{Command, CommandAck, CommandKind, CommandOutcome, ParamName, ParamValue};
+pub use hazards::{HAZARD_CELLS_MAX, HazardCells};
 pub use mapping::{
     Constraint, ConstraintId, ConstraintKind, MatchAttempt, MatchOutcome, SUBMAP_CHUNK_BYTES, SubmapChunk,
     SubmapEncoding, SubmapHeader, SubmapLink,
@@ -44,7 +46,7 @@ pub enum Priority {
     Constraint = 2,
     /// Pose estimates.
     State = 3,
-    /// Health reports.
+    /// Health reports and the hazard cells around a robot.
     Telemetry = 4,
     /// Finished submaps.
     Bulk = 5,
@@ -191,6 +193,8 @@ messages! {
     Ack             = 0x02, v 1, LatestWins, Control;
     PoseEstimate    = 0x10, v 1, LatestWins, State;
     Telemetry       = 0x11, v 3, LatestWins, Telemetry;
+    // Ahead of the submaps: the operator's picture of now, rate-limited at its source.
+    HazardCells     = 0x12, v 1, LatestWins, Telemetry;
     Constraint      = 0x20, v 1, Reliable,   Constraint;
     MatchAttempt    = 0x21, v 1, Reliable,   Constraint;
     SubmapHeader    = 0x30, v 1, Reliable,   Bulk;
@@ -208,6 +212,7 @@ impl AnyMessage {
             AnyMessage::Ack(m) => u16::from(m.channel),
             AnyMessage::PoseEstimate(m) => u16::from(m.robot.0),
             AnyMessage::Telemetry(m) => u16::from(m.robot.0),
+            AnyMessage::HazardCells(m) => u16::from(m.robot.0),
             _ => 0,
         }
     }

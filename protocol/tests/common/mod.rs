@@ -211,6 +211,27 @@ pub fn telemetry() -> impl Strategy<Value = Telemetry> {
         )
 }
 
+pub fn hazard_cells() -> impl Strategy<Value = HazardCells> {
+    (
+        robot(),
+        any::<u64>(),
+        submap(),
+        pose(),
+        real32(),
+        any::<u16>(),
+        heapless_vec::<_, HAZARD_CELLS_MAX>(any::<[i8; 2]>()),
+    )
+        .prop_map(|(robot, stamp_ns, submap, t_submap_body, cell_size_m, omitted, cells)| HazardCells {
+            robot,
+            stamp_ns,
+            submap,
+            t_submap_body,
+            cell_size_m,
+            omitted,
+            cells,
+        })
+}
+
 pub fn constraint_id() -> impl Strategy<Value = ConstraintId> {
     (robot(), any::<u32>()).prop_map(|(robot, seq)| ConstraintId { robot, seq })
 }
@@ -324,6 +345,7 @@ pub fn any_message() -> impl Strategy<Value = AnyMessage> {
         ack().prop_map(AnyMessage::from),
         pose_estimate().prop_map(AnyMessage::from),
         telemetry().prop_map(AnyMessage::from),
+        hazard_cells().prop_map(AnyMessage::from),
         constraint().prop_map(AnyMessage::from),
         match_attempt().prop_map(AnyMessage::from),
         submap_header().prop_map(AnyMessage::from),

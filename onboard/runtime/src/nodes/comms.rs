@@ -32,6 +32,10 @@
 //!   filter's pose goes to the ground with the telemetry only while the mapper sends none (before
 //!   its graph starts, or while it restarts): otherwise the ground would see poses that are in no
 //!   robot's graph.
+//! - The vision process's hazard cells (`vision/hazards`, about 1 Hz) go to the ground at most
+//!   once per `CommsConfig::hazards_period_ns` (default [`HAZARDS_PERIOD_NS`]) as one latest-wins
+//!   [`protocol::message::HazardCells`] at telemetry priority, coarsened and capped on the way
+//!   ([`hazards::hazard_cells`]); a newer one replaces an unsent older one.
 //! - Ground commands are verified by the endpoint (HMAC, see `protocol::auth`), checked against a
 //!   replay guard when executed (persisted to `CommsConfig::replay_state` before execution, so a
 //!   command recorded before a restart stays rejected after it) and always answered with a
@@ -52,16 +56,17 @@
 
 mod driver;
 mod ground;
+pub mod hazards;
 pub mod replay;
 mod resend;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::{Path, PathBuf};
 
-use msgs::{FilterStateMsg, TaskStatsMsg, TeamHeader};
+use msgs::{FilterStateMsg, HazardCellsMsg, TaskStatsMsg, TeamHeader};
 use protocol::delivery::{DEFAULT_WINDOW, Delivered, Endpoint, EndpointConfig, EndpointStats, RtoConfig, SendError};
 use protocol::frame::Framing;
-use protocol::message::{CommandAck, CommandKind, CommandOutcome, Heartbeat, Mode, ParamValue};
+use protocol::message::{CommandAck, CommandKind, CommandOutcome, HazardCells, Heartbeat, Mode, ParamValue};
 use protocol::{AnyMessage, AuthKey, Delivery, MAX_PACKET_BYTES, MessageKey, NodeId, Priority, ReplayGuard, RobotId};
 
 pub use driver::{DriverStats, LinkDriver, step_duplex};
@@ -77,6 +82,11 @@ pub const GROUND_RATE_BYTES_PER_S: u64 = 12_000;
 /// Initial retransmission timeout of a ground link: the thesis's ground link has a 4 s round
 /// trip, and the default 1 s would resend everything in flight before the first RTT sample.
 pub const GROUND_INITIAL_RTO_MS: u64 = 4_000;
+
+/// The default period of the hazard cells on the ground link: the vision process publishes them
+/// about once a second, and every other picture is enough for an operator watching a rover that
+/// drives at walking pace or slower, at half the cost (at most about 320 B/s of the ground link).
+pub const HAZARDS_PERIOD_NS: u64 = 2_000_000_000;
 
 /// How long without an own pose from the mapper (it sends one a second) before the filter's pose
 /// goes to the ground instead.
@@ -179,6 +189,8 @@ pub struct CommsConfig {
     pub initial_mode: Mode,
     pub heartbeat_period_ns: u64,
     pub telemetry_period_ns: u64,
+    /// The hazard cells go to the ground at most this often.
+    pub hazards_period_ns: u64,
     /// Cores of the board, to turn process CPU time into load.
     pub cpu_cores: u16,
     /// The board's memory, KiB (telemetry's `mem_total_kib`; `None`: not known, reported 0).
@@ -205,6 +217,7 @@ impl CommsConfig {
             initial_mode: Mode::Idle,
             heartbeat_period_ns: 1_000_000_000,
             telemetry_period_ns: 1_000_000_000,
+            hazards_period_ns: HAZARDS_PERIOD_NS,
             cpu_cores: 1,
             board_memory_kib: None,
             max_backlog: 2048,
@@ -319,6 +332,9 @@ pub struct CommsStats {
     pub drops: CommsDrops,
     /// `ToComms` payloads that did not decode as a `protocol` packet.
     pub decode_rejections: u64,
+    /// Hazard messages from the vision process with no usable picture (not a pose, not a cell
+    /// size).
+    pub hazard_rejections: u64,
     /// `ToComms` headers whose `message_key` disagreed with the payload (the payload wins).
     pub header_key_mismatches: u64,
     /// Packets from the links that the endpoints rejected (malformed, bad MAC, not for us, …).
@@ -438,6 +454,9 @@ pub struct CommsNode {
     ground_link: Option<usize>,
     heartbeat_period_ns: u64,
     telemetry_period_ns: u64,
+    hazards_period_ns: u64,
+    /// The newest hazard cells not sent yet (only with a ground link).
+    hazards: Option<HazardCells>,
     max_backlog: usize,
     max_inbox: usize,
     replay: ReplayGuard<{ replay::MAX_SENDERS }>,
@@ -457,6 +476,7 @@ pub struct CommsNode {
     started_ns: Option<u64>,
     next_heartbeat_ns: u64,
     next_telemetry_ns: u64,
+    next_hazards_ns: u64,
     stats: CommsStats,
 }
 
@@ -515,6 +535,8 @@ impl CommsNode {
             ground_link,
             heartbeat_period_ns: config.heartbeat_period_ns.max(1),
             telemetry_period_ns: config.telemetry_period_ns.max(1),
+            hazards_period_ns: config.hazards_period_ns.max(1),
+            hazards: None,
             max_backlog: config.max_backlog,
             max_inbox: config.max_inbox.max(1),
             replay: match &config.replay_state {
@@ -533,6 +555,7 @@ impl CommsNode {
             started_ns: None,
             next_heartbeat_ns: 0,
             next_telemetry_ns: 0,
+            next_hazards_ns: 0,
             stats: CommsStats::default(),
         })
     }
@@ -951,6 +974,30 @@ impl CommsNode {
         }
     }
 
+    /// Keeps the newest hazard picture for the ground (there is nobody else to send it to).
+    fn on_hazards(&mut self, msg: &HazardCellsMsg) {
+        if self.ground_link.is_none() {
+            return;
+        }
+        match hazards::hazard_cells(self.robot, msg) {
+            Some(cells) => self.hazards = Some(cells),
+            None => self.stats.hazard_rejections += 1,
+        }
+    }
+
+    /// Sends the newest hazard picture if one is waiting and the period has passed since the last.
+    fn send_hazards(&mut self, now_ns: u64) {
+        if now_ns < self.next_hazards_ns {
+            return;
+        }
+        let Some(cells) = self.hazards.take() else { return };
+        self.next_hazards_ns = now_ns.saturating_add(self.hazards_period_ns);
+        let max_backlog = self.max_backlog;
+        if let Some(link) = self.ground_link.and_then(|index| self.links.get_mut(index)) {
+            link.send(ns_to_ms(now_ns), NodeId::GROUND, &AnyMessage::from(cells), max_backlog, &mut self.stats.drops);
+        }
+    }
+
     /// Counts a link outage once it has been silent for three heartbeat periods after hearing
     /// from someone.
     fn watch_outages(&mut self, now_ns: u64) {
@@ -981,7 +1028,7 @@ impl Node for CommsNode {
     }
 
     fn subscriptions(&self) -> &'static [Topic] {
-        &[Topic::ToComms, Topic::TaskStats, Topic::FilterState]
+        &[Topic::ToComms, Topic::TaskStats, Topic::FilterState, Topic::Hazards]
     }
 
     fn on_message(&mut self, message: Message<'_>, out: &mut dyn Outbox) -> Result<(), NodeError> {
@@ -989,6 +1036,7 @@ impl Node for CommsNode {
             Message::ToComms(header, bytes) => self.on_to_comms(header.stamp_ns, header, bytes),
             Message::TaskStats(stats) => self.feed.on_task_stats(stats),
             Message::FilterState(state) => self.feed.on_filter_state(state),
+            Message::Hazards(hazards) => self.on_hazards(hazards),
             _ => {}
         }
         self.publish_inbox(out)
@@ -1012,6 +1060,7 @@ impl Node for CommsNode {
             self.send_ground_feed(now_ns);
             self.next_telemetry_ns = now_ns.saturating_add(self.telemetry_period_ns);
         }
+        self.send_hazards(now_ns);
         self.publish_inbox(out)
     }
 }
