@@ -11,8 +11,9 @@ use std::sync::mpsc;
 use std::time::Duration;
 
 use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, MarkerMsg, Pose,
-    StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, HAZARD_CELLS_MAX,
+    HazardCellsMsg, HeadCommandMsg, ImuMsg, MarkerMsg, Pose, StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg,
+    WheelOdomMsg,
 };
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
@@ -217,6 +218,27 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         devices: 0,
     };
     let imu = ImuMsg { stamp_ns, ..imu(0) };
+    let head = HeadCommandMsg {
+        stamp_ns,
+        sequence: 3,
+        pan_rad: 0.1,
+        tilt_rad: 0.55,
+        max_rate_radps: 0.8,
+        mode: 1,
+        reserved: 0,
+    };
+    let mut cells = [[0i16; 2]; HAZARD_CELLS_MAX];
+    cells[0] = [12, -3];
+    let hazards = HazardCellsMsg {
+        stamp_ns,
+        t_local_body: pose(),
+        frame_id: 0,
+        cell_size_m: 0.05,
+        origin_cell: [4, 5],
+        count: 1,
+        omitted: 0,
+        cells,
+    };
     let messages = [
         Message::Imu(&imu),
         Message::WheelOdom(&wheel),
@@ -230,6 +252,8 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
         Message::ToComms(&team, b"to comms"),
         Message::ToMapper(&team, b"to mapper"),
         Message::TaskStats(&stats),
+        Message::HeadCommand(&head),
+        Message::Hazards(&hazards),
     ];
     for message in messages {
         outbox.publish(message).unwrap();
@@ -249,6 +273,8 @@ fn every_topic_round_trip(outbox: &mut impl Outbox, inbox: &mut onboard::bus::Bu
                 Message::ToComms(h, bytes) => assert_eq!((*h, bytes), (team, &b"to comms"[..])),
                 Message::ToMapper(h, bytes) => assert_eq!((*h, bytes), (team, &b"to mapper"[..])),
                 Message::FilterState(m) => assert_eq!(*m, state),
+                Message::HeadCommand(m) => assert_eq!(*m, head),
+                Message::Hazards(m) => assert_eq!(*m, hazards),
                 _ => {}
             }
             seen.push(message.topic());
@@ -298,7 +324,7 @@ fn killed_publisher_is_cleaned_up_and_the_same_topics_work_again() {
     assert!(mapper_bus.stale_cleanup().is_empty());
     let mut fresh_inbox = mapper_bus.inbox(&Topic::ALL).unwrap();
     every_topic_round_trip(&mut outbox, &mut fresh_inbox, 78);
-    assert_eq!(inbox.drain(&mut |_| Ok(())).unwrap(), 12, "the surviving subscriber got round 78 too");
+    assert_eq!(inbox.drain(&mut |_| Ok(())).unwrap(), Topic::ALL.len(), "the surviving subscriber got round 78 too");
     for topic in Topic::ALL {
         assert_eq!(outbox.counters(topic).discarded, 0);
         assert_eq!(outbox.counters(topic).failed, 0);
