@@ -4,8 +4,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use msgs::{
-    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, ImuMsg, MarkerMsg, Pose,
-    StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg, WheelOdomMsg,
+    DisparityHeader, DisparityPixel, FilterStateMsg, FrameSwitchMsg, FrameSwitchRequestMsg, HAZARD_CELLS_MAX,
+    HazardCellsMsg, HeadCommandMsg, ImuMsg, MarkerMsg, Pose, StereoHeader, TaskStatsMsg, TeamHeader, VoDeltaMsg,
+    WheelOdomMsg,
 };
 use onboard::nodes::{Message, Node, NodeError, Outbox, Topic};
 use onboard::record::{
@@ -123,6 +124,30 @@ fn one_of_each() -> Vec<OwnedMessage> {
             queue_capacity: 0,
             devices: 0,
         }),
+        OwnedMessage::HeadCommand(HeadCommandMsg {
+            stamp_ns: 15,
+            sequence: 4,
+            pan_rad: -0.5,
+            tilt_rad: 0.55,
+            max_rate_radps: 0.8,
+            mode: HeadCommandMsg::SWEEP,
+            reserved: 0,
+        }),
+        OwnedMessage::Hazards(Box::new(HazardCellsMsg {
+            stamp_ns: 16,
+            t_local_body: Pose { translation_m: [1.0, 2.0, 0.3], rotation_wxyz: [1.0, 0.0, 0.0, 0.0] },
+            frame_id: 2,
+            cell_size_m: 0.05,
+            origin_cell: [20, -40],
+            count: 2,
+            omitted: 7,
+            cells: {
+                let mut cells = [[0i16; 2]; HAZARD_CELLS_MAX];
+                cells[0] = [3, 4];
+                cells[1] = [-5, 6];
+                cells
+            },
+        })),
     ]
 }
 
