@@ -19,6 +19,29 @@ use super::{
     Tally, Truth, Viewpoint,
 };
 
+/// The stereo of the world's first robot's camera as the vision process runs it (SGM with
+/// `sgm`, then `speckle`, then depth), on all cores.
+pub(super) fn stereo_pipeline(
+    world: &World,
+    sgm: SgmConfig,
+    speckle: Option<SpeckleFilter>,
+) -> Result<DepthPipeline, EvaluationError> {
+    let camera = world.robots[0].model().camera;
+    let geometry = StereoGeometry {
+        fx_px: camera.f_px,
+        fy_px: camera.f_px,
+        cx_px: camera.cx_px,
+        cy_px: camera.cy_px,
+        baseline_m: camera.baseline_m,
+    };
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let options = DepthOptions { sgm, despeckle: false, threads };
+    let mut stereo =
+        DepthPipeline::with_geometry(geometry, camera.width_px as usize, camera.height_px as usize, options)?;
+    stereo.set_speckle_filter(speckle);
+    Ok(stereo)
+}
+
 /// Renderer, SGM and classifier for one world, all buffers kept between viewpoints.
 #[derive(Debug)]
 pub struct Evaluator<'w> {
@@ -62,17 +85,7 @@ impl<'w> Evaluator<'w> {
     ) -> Result<Self, EvaluationError> {
         let camera = world.robots[0].model().camera;
         let (width, height) = (camera.width_px as usize, camera.height_px as usize);
-        let geometry = StereoGeometry {
-            fx_px: camera.f_px,
-            fy_px: camera.f_px,
-            cx_px: camera.cx_px,
-            cy_px: camera.cy_px,
-            baseline_m: camera.baseline_m,
-        };
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let options = DepthOptions { sgm, despeckle: false, threads };
-        let mut stereo = DepthPipeline::with_geometry(geometry, width, height, options)?;
-        stereo.set_speckle_filter(speckle);
+        let stereo = stereo_pipeline(world, sgm, speckle)?;
         Ok(Evaluator {
             world,
             truth,

@@ -29,10 +29,11 @@ use sim::head_servo::HeadServo;
 use sim::render::Renderer;
 use sim::world::{ObstacleMap, World};
 use vision::obstacles::{LocalObstacleMap, ObstacleClassifier, ObstacleConfig, PixelLabels};
-use vision::{DepthOptions, DepthPipeline, SpeckleFilter, StereoGeometry, depth_sgm_config};
+use vision::{DepthPipeline, SpeckleFilter, depth_sgm_config};
 
-use super::viewpoints::{body_pose, next_unit, view_on_terrain};
-use super::{Aim, EDGE_SECTION_M, EvaluationError, MATCHING, Truth};
+use super::evaluator::stereo_pipeline;
+use super::viewpoints::{body_pose, next_unit, targets, view_on_terrain};
+use super::{Aim, EvaluationError, MATCHING, Truth};
 
 /// How the rover drives and stops: the stopping distance is what it covers from the frame that
 /// shows a hazard to standing still.
@@ -135,14 +136,8 @@ pub fn traverse_paths(
     let cam = world.robots[0].model().t_body_cam(0.0, options.mounted_tilt_rad).translation.vector;
     let stop_m = options.drive.stopping_distance_m();
     let mut rng = seed ^ 0x7A4E_25E1;
-    let targets = truth.rocks.iter().map(|(o, h)| (Aim::Rock, o.centre_m, vec![*o], h - max_step_m)).chain(
-        truth.edge_targets.iter().map(|p| {
-            let section = truth.edges.iter().filter(|o| (o.centre_m - p).norm() <= EDGE_SECTION_M).copied().collect();
-            (Aim::Edge, *p, section, 0.0)
-        }),
-    );
     let mut out = Vec::new();
-    for (aim, target, section, excess_height_m) in targets {
+    for (aim, target, section, excess_height_m) in targets(truth, max_step_m) {
         if section.is_empty() {
             continue;
         }
@@ -210,17 +205,8 @@ impl<'w> Traverse<'w> {
     ) -> Result<Self, EvaluationError> {
         let camera = world.robots[0].model().camera;
         let (width, height) = (camera.width_px as usize, camera.height_px as usize);
-        let geometry = StereoGeometry {
-            fx_px: camera.f_px,
-            fy_px: camera.f_px,
-            cx_px: camera.cx_px,
-            cy_px: camera.cy_px,
-            baseline_m: camera.baseline_m,
-        };
-        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-        let depth_options = DepthOptions { sgm: depth_sgm_config(), despeckle: false, threads };
-        let mut stereo = DepthPipeline::with_geometry(geometry, width, height, depth_options)?;
-        stereo.set_speckle_filter(Some(SpeckleFilter::for_image(width, height)));
+        let speckle = SpeckleFilter::for_image(width, height);
+        let stereo = stereo_pipeline(world, depth_sgm_config(), Some(speckle))?;
         Ok(Traverse {
             world,
             truth,

@@ -3,7 +3,7 @@
 //! on ground the sim planner calls free, with the whole view on the terrain.
 
 use eval::map::TrueObstacle;
-use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion};
 use sim::motion::wheel_contact_plane;
 use sim::robot::ROVER_CHASSIS_HEIGHT_M;
 use sim::world::{ObstacleMap, World};
@@ -150,6 +150,19 @@ pub struct Approach {
     pub frames: Vec<(Viewpoint, f64)>,
 }
 
+/// What a drive aims at: each rock (with its height above `max_step_m`) and each edge target
+/// (with the edge discs of its section), as (aim, point, true obstacles, excess height).
+pub(super) fn targets(
+    truth: &Truth,
+    max_step_m: f64,
+) -> impl Iterator<Item = (Aim, Point2<f64>, Vec<TrueObstacle>, f64)> + '_ {
+    let rocks = truth.rocks.iter().map(move |(o, h)| (Aim::Rock, o.centre_m, vec![*o], h - max_step_m));
+    rocks.chain(truth.edge_targets.iter().map(|p| {
+        let section = truth.edges.iter().filter(|o| (o.centre_m - p).norm() <= EDGE_SECTION_M).copied().collect();
+        (Aim::Edge, *p, section, 0.0)
+    }))
+}
+
 /// One approach per rock and per edge target, from the first of 16 bearings (starting at a
 /// random one) whose whole straight path keeps the body on free ground and the view on the
 /// terrain. Frames every [`APPROACH_STEP_M`] from `distances_m` (far, near), the head tilted down
@@ -168,14 +181,8 @@ pub fn approaches(
     let (far_m, near_m) = distances_m;
     let distances: Vec<f64> = approach_distances(distances_m).collect();
     let mut rng = seed ^ 0xA9_9A0C;
-    let targets = truth.rocks.iter().map(|(o, h)| (Aim::Rock, o.centre_m, vec![*o], h - max_step_m)).chain(
-        truth.edge_targets.iter().map(|p| {
-            let section = truth.edges.iter().filter(|o| (o.centre_m - p).norm() <= EDGE_SECTION_M).copied().collect();
-            (Aim::Edge, *p, section, 0.0)
-        }),
-    );
     let mut out = Vec::new();
-    for (aim, target, section, excess_height_m) in targets {
+    for (aim, target, section, excess_height_m) in targets(truth, max_step_m) {
         let start = 2.0 * std::f64::consts::PI * next_unit(&mut rng);
         for k in 0..16 {
             let yaw = start + k as f64 * 2.0 * std::f64::consts::PI / 16.0;
