@@ -11,8 +11,9 @@
 //! obstacle seen twice in a row already crosses 1 from free ground when it is clearly above the
 //! threshold. A cell unseen so far takes its first value unfiltered.
 //!
-//! The map lives in the filter's local frame; at a frame switch the caller clears it (or keeps
-//! it if the switch's translation is small compared to the map) because the lattice moves.
+//! The map lives in the filter's local frame; at a frame switch the caller moves it into the new
+//! frame ([`LocalObstacleMap::reframe`]) because the lattice moves, or clears it when the switch
+//! is unknown. Negative edges are held rather than low-passed ([`LocalObstacleMap::integrate`]).
 
 use nalgebra::Isometry3;
 
