@@ -4,8 +4,9 @@
 //! rover is within stopping distance.
 //!
 //! Run: `cargo run --release -p sil --example hazard_traverse -- [--scenarios moon,mars]
-//! [--seeds N] [--gaze on|off] [--true-depth] [--bridge PX] [--hidden-drop M] [--frame-every S] [--only rocks|edges] [--max-targets K]
-//! [--size M] [--json FILE]`.
+//! [--seeds N] [--gaze on|off] [--true-depth] [--bridge PX] [--hidden-drop M] [--frame-every S] [--only rocks|edges]
+//! [--max-targets K] [--max-edges K] [--size M] [--profiles] [--json FILE]`. `--profiles` prints every drive with the
+//! true ground along its path (misses are always printed).
 
 use std::io::Write;
 
@@ -13,19 +14,20 @@ use sil::obstacles::traverse::{CLEAR_EXCESS_M, Traverse, TraverseOptions, Traver
 use sil::obstacles::{Aim, Truth, preset_world};
 use vision::obstacles::ObstacleConfig;
 
-/// Sections whose ground drops at least this far (the negative-edge hazards).
-const MIN_DROP_M: f64 = 0.3;
-
 struct Args {
     scenarios: Vec<String>,
     seeds: u64,
     options: TraverseOptions,
     config: ObstacleConfig,
     max_targets: Option<usize>,
+    /// Every rock, and at most this many edge targets per world (in the order along the rims).
+    max_edges: Option<usize>,
     /// Drive at rocks only or edges only (both: `None`).
     only: Option<Aim>,
     size_m: f64,
     json: Option<String>,
+    /// Print every drive's line, not only the misses.
+    profiles: bool,
 }
 
 fn parse() -> Result<Args, String> {
@@ -35,9 +37,11 @@ fn parse() -> Result<Args, String> {
         options: TraverseOptions::default(),
         config: ObstacleConfig::default(),
         max_targets: None,
+        max_edges: None,
         only: None,
         size_m: 60.0,
         json: None,
+        profiles: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -66,8 +70,10 @@ fn parse() -> Result<Args, String> {
                 }
             }
             "--max-targets" => args.max_targets = Some(number(value()?)? as usize),
+            "--max-edges" => args.max_edges = Some(number(value()?)? as usize),
             "--size" => args.size_m = number(value()?)?,
             "--json" => args.json = Some(value()?),
+            "--profiles" => args.profiles = true,
             other => return Err(format!("unknown argument {other:?}")),
         }
     }
@@ -80,11 +86,15 @@ fn pct(found: usize, of: usize) -> String {
 
 fn row(name: &str, t: &TraverseTally) -> String {
     format!(
-        "{name:<12} rocks ≥ h_max+{CLEAR_EXCESS_M}: {:<18} rocks > h_max: {:<18} edges: {:<18} precision: {:<20} frames {}",
+        "{name:<9} rocks ≥ h_max+{CLEAR_EXCESS_M}: {:<17} rocks > h_max: {:<17} edges: {:<17} steep edges: {:<17} precision: {:<20} false cells beside {} / falling {} / open {}, frames {}",
         pct(t.rocks_clear.1, t.rocks_clear.0),
         pct(t.rocks.1, t.rocks.0),
         pct(t.edges.1, t.edges.0),
+        pct(t.edges_steep.1, t.edges_steep.0),
         pct(t.cells_true, t.hazard_cells),
+        t.cells_beside,
+        t.cells_falling,
+        t.hazard_cells - t.cells_true - t.cells_beside - t.cells_falling,
         t.frames
     )
 }
@@ -115,10 +125,17 @@ fn main() -> Result<(), String> {
             let world = preset_world(scenario, seed, args.size_m).map_err(|e| e.to_string())?;
             let all = Truth::of(&world, args.config.max_step_m);
             let mut targets = all.clone();
-            targets.keep_drops(&world, MIN_DROP_M);
-            let mut paths = traverse_paths(&world, &targets, args.config.max_step_m, &o, seed);
+            targets.keep_drops(&world, o.edge_drop_m);
+            let mut paths = traverse_paths(&world, &targets, &args.config, &o, seed);
             if let Some(aim) = args.only {
                 paths.retain(|p| p.aim == aim);
+            }
+            if let Some(k) = args.max_edges {
+                let mut edges = 0;
+                paths.retain(|p| {
+                    edges += usize::from(p.aim == Aim::Edge);
+                    p.aim == Aim::Rock || edges <= k
+                });
             }
             if let Some(k) = args.max_targets {
                 // Rocks first: they are few; then edges up to the cap.
@@ -129,10 +146,18 @@ fn main() -> Result<(), String> {
             let mut tally = TraverseTally::default();
             for (k, path) in paths.iter().enumerate() {
                 let outcome = traverse.drive(path, seed * 1_000_000 + k as u64 * 1000).map_err(|e| e.to_string())?;
-                if !outcome.found_at_stop {
+                let profile = path.profile_m(&world, args.config.max_slope_rad);
+                if args.profiles || !outcome.found_at_stop {
                     misses.push(format!(
-                        "{scenario} seed {seed} {:?} excess {:.2} m: first marked at {}",
+                        "{} {scenario} seed {seed} {:?} at ({:.1}, {:.1}) yaw {:.2} rise {:.2} m drop ahead {:.2} m (steep {:.2} m) excess {:.2} m: first marked at {}",
+                        if outcome.found_at_stop { "found" } else { "missed" },
                         outcome.aim,
+                        path.target_m.x,
+                        path.target_m.y,
+                        path.yaw_rad,
+                        profile.rise_m,
+                        profile.drop_m,
+                        profile.steep_drop_m,
                         outcome.excess_height_m,
                         outcome.first_found_m.map_or("never".into(), |d| format!("{d:.2} m"))
                     ));
@@ -155,7 +180,7 @@ fn main() -> Result<(), String> {
     println!("{}", row("all", &total));
     println!("found at any frame before the stop: rocks {}, edges {}", total.rocks_any, total.edges_any);
     for m in &misses {
-        println!("missed: {m}");
+        println!("{m}");
     }
     if let Some(path) = args.json {
         let worlds: Vec<serde_json::Value> = per_world
@@ -164,8 +189,9 @@ fn main() -> Result<(), String> {
                 serde_json::json!({
                     "scenario": s, "seed": seed,
                     "rocks_clear": [t.rocks_clear.0, t.rocks_clear.1], "rocks": [t.rocks.0, t.rocks.1],
-                    "edges": [t.edges.0, t.edges.1], "hazard_cells": t.hazard_cells,
-                    "cells_true": t.cells_true, "cells_listed": t.cells_listed, "frames": t.frames,
+                    "edges": [t.edges.0, t.edges.1], "edges_steep": [t.edges_steep.0, t.edges_steep.1],
+                    "hazard_cells": t.hazard_cells, "cells_true": t.cells_true, "cells_listed": t.cells_listed,
+                    "cells_beside": t.cells_beside, "cells_falling": t.cells_falling, "frames": t.frames,
                 })
             })
             .collect();

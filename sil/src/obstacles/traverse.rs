@@ -77,6 +77,8 @@ pub struct TraverseOptions {
     pub mounted_tilt_rad: f64,
     /// Classify the renderer's exact depth instead of SGM's.
     pub true_depth: bool,
+    /// An edge drive heads into a drop at least this deep (the negative edges, 0.3 m).
+    pub edge_drop_m: f64,
 }
 
 impl Default for TraverseOptions {
@@ -88,6 +90,7 @@ impl Default for TraverseOptions {
             gaze: Some(GazeOptions::lru()),
             mounted_tilt_rad: sim::scenario::ROVER_TILT_RAD,
             true_depth: false,
+            edge_drop_m: 0.3,
         }
     }
 }
@@ -103,6 +106,17 @@ pub struct TraversePath {
     /// The point driven at, and the heading.
     pub target_m: Point2<f64>,
     pub yaw_rad: f64,
+    /// An edge whose drop ahead is steeper than the classifier's slope limit: a cliff, not a
+    /// slope the rover could drive down (see [`traverse_paths`]).
+    pub steep: bool,
+}
+
+/// The true ground along a path at its target point ([`TraversePath::profile_m`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PathProfile {
+    pub rise_m: f64,
+    pub drop_m: f64,
+    pub steep_drop_m: f64,
 }
 
 /// What one drive found.
@@ -110,6 +124,8 @@ pub struct TraversePath {
 pub struct TraverseOutcome {
     pub aim: Aim,
     pub excess_height_m: f64,
+    /// An edge drive at a drop steeper than the slope limit ([`TraversePath::steep`]).
+    pub steep: bool,
     /// In the local map when the front reached the stopping distance.
     pub found_at_stop: bool,
     /// Front-to-target distance of the first frame after which the map held it.
@@ -120,15 +136,28 @@ pub struct TraverseOutcome {
     pub hazard_cells: usize,
     pub cells_listed: usize,
     pub cells_true: usize,
+    /// Where the false cells lie: within [`BESIDE_M`] of a listed hazard (the hazard drawn too
+    /// wide), or where the true ground falls more than `h_max` within 1 m (a drop the lists
+    /// do not hold: a gentler slope, a far crater wall); the rest lie on open ground.
+    pub cells_beside: usize,
+    pub cells_falling: usize,
 }
+
+/// A false cell this close to a listed hazard counts as drawn too wide, not as on open ground.
+pub const BESIDE_M: f64 = 0.5;
 
 /// The drive's paths: one per rock and per edge target, from the first of 16 bearings
 /// (starting at a random one) whose whole path keeps the body on free ground and the view on
-/// the terrain.
+/// the terrain and, for an edge, heads into its drop: the ground falls at least
+/// [`TraverseOptions::edge_drop_m`] within 1 m past the target point. A rim passed along or
+/// climbed from below is not the hazard the rule is for (and the rover would not fall there).
+/// An edge whose drop ahead is also steeper than `config.max_slope_rad` is marked
+/// [`TraversePath::steep`]: the sim lists rims that drop 0.3 m within 1 m (17°), which the
+/// classifier's slope limit (25°) rightly lets the rover drive down.
 pub fn traverse_paths(
     world: &World,
     truth: &Truth,
-    max_step_m: f64,
+    config: &ObstacleConfig,
     options: &TraverseOptions,
     seed: u64,
 ) -> Vec<TraversePath> {
@@ -137,14 +166,21 @@ pub fn traverse_paths(
     let stop_m = options.drive.stopping_distance_m();
     let mut rng = seed ^ 0x7A4E_25E1;
     let mut out = Vec::new();
-    for (aim, target, section, excess_height_m) in targets(truth, max_step_m) {
+    for (aim, target, section, excess_height_m) in targets(truth, config.max_step_m) {
         if section.is_empty() {
             continue;
         }
         let start = std::f64::consts::TAU * next_unit(&mut rng);
         for k in 0..16 {
             let yaw = start + k as f64 * std::f64::consts::TAU / 16.0;
-            let path = TraversePath { aim, excess_height_m, truth: section.clone(), target_m: target, yaw_rad: yaw };
+            let mut path = TraversePath {
+                aim,
+                excess_height_m,
+                truth: section.clone(),
+                target_m: target,
+                yaw_rad: yaw,
+                steep: false,
+            };
             // The body from the start to a little past the stop, every 0.1 m.
             let steps = ((options.start_m - stop_m + 0.5) / 0.1).round() as usize;
             let ok = (0..=steps).all(|i| {
@@ -154,7 +190,9 @@ pub fn traverse_paths(
                 let cam_xy = [body[0] + c * cam.x - s * cam.y, body[1] + s * cam.x + c * cam.y];
                 !free.is_blocked(body) && view_on_terrain(world, cam_xy, yaw)
             });
-            if ok {
+            let profile = path.profile_m(world, config.max_slope_rad);
+            path.steep = aim == Aim::Edge && profile.steep_drop_m >= options.edge_drop_m;
+            if ok && (aim == Aim::Rock || profile.drop_m >= options.edge_drop_m) {
                 out.push(path);
                 break;
             }
@@ -169,6 +207,30 @@ impl TraversePath {
         let (s, c) = self.yaw_rad.sin_cos();
         let back = d + FRONT_M;
         [self.target_m.x - c * back, self.target_m.y - s * back]
+    }
+
+    /// The true ground along the path, in metres: how much higher the target point lies than
+    /// the ground 1 m before it; the largest drop below it within 1 m past it (the reach of
+    /// [`Truth::keep_drops`]); and the largest such drop that is also steeper than
+    /// `max_slope_rad` from the target point. A negative edge the rover would drive off has its
+    /// drop ahead; passed along the rim or approached from below, the drop lies aside or behind.
+    pub fn profile_m(&self, world: &World, max_slope_rad: f64) -> PathProfile {
+        let hf = &world.terrain.heightfield;
+        let (s, c) = self.yaw_rad.sin_cos();
+        let at = |d: f64| hf.height_at(self.target_m.x + c * d, self.target_m.y + s * d);
+        let Some(top) = at(0.0) else { return PathProfile::default() };
+        let slope = max_slope_rad.tan();
+        let mut profile = PathProfile { rise_m: at(-1.0).map_or(0.0, |z| top - z), ..PathProfile::default() };
+        for i in 1..=20 {
+            let d = 0.05 * i as f64;
+            if let Some(z) = at(d) {
+                profile.drop_m = profile.drop_m.max(top - z);
+                if top - z > slope * d {
+                    profile.steep_drop_m = profile.steep_drop_m.max(top - z);
+                }
+            }
+        }
+        profile
     }
 
     /// Distance from the front at `body` to the nearest point of the target's obstacles.
@@ -237,10 +299,13 @@ impl<'w> Traverse<'w> {
             excess_height_m: path.excess_height_m,
             found_at_stop: false,
             first_found_m: None,
+            steep: path.steep,
             frames: 0,
             hazard_cells: 0,
             cells_listed: 0,
             cells_true: 0,
+            cells_beside: 0,
+            cells_falling: 0,
         };
         let mut tick_ns = 0;
         for frame in 0.. {
@@ -298,13 +363,24 @@ impl<'w> Traverse<'w> {
     fn score_cells(&self, map: &LocalObstacleMap, outcome: &mut TraverseOutcome) {
         let cell = map.cell_size_m();
         let hf = &self.world.terrain.heightfield;
-        let listed = |c: Point2<f64>| {
+        let clearance = |c: Point2<f64>| {
             self.truth
                 .rocks
                 .iter()
                 .map(|(o, _)| o)
                 .chain(&self.truth.edges)
-                .any(|o| (o.centre_m - c).norm() <= o.radius_m + MATCHING.tolerance_m)
+                .map(|o| (o.centre_m - c).norm() - o.radius_m)
+                .fold(f64::INFINITY, f64::min)
+        };
+        let falling = |c: Point2<f64>| {
+            let Some(top) = hf.height_at(c.x, c.y) else { return false };
+            (0..16).any(|k| {
+                let (s, co) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
+                (1..=20).any(|i| {
+                    let d = 0.05 * i as f64;
+                    hf.height_at(c.x + co * d, c.y + s * d).is_some_and(|z| top - z > self.config.max_step_m)
+                })
+            })
         };
         let half = (self.config.window_cells as i64 - 1) / 2;
         let high = self.config.window_cells as i64 - 1 - half;
@@ -325,11 +401,16 @@ impl<'w> Traverse<'w> {
         for (i, j) in map.hazard_cells() {
             let centre = Point2::new((i as f64 + 0.5) * cell, (j as f64 + 0.5) * cell);
             outcome.hazard_cells += 1;
-            if listed(centre) {
+            let clear_m = clearance(centre);
+            if clear_m <= MATCHING.tolerance_m {
                 outcome.cells_listed += 1;
                 outcome.cells_true += 1;
             } else if true_step(i, j) {
                 outcome.cells_true += 1;
+            } else if clear_m <= BESIDE_M {
+                outcome.cells_beside += 1;
+            } else if falling(centre) {
+                outcome.cells_falling += 1;
             }
         }
     }
@@ -352,6 +433,8 @@ pub struct TraverseTally {
     pub rocks_clear: (usize, usize),
     pub rocks: (usize, usize),
     pub edges: (usize, usize),
+    /// The edge drives at drops steeper than the slope limit.
+    pub edges_steep: (usize, usize),
     /// Found at any frame before the stop.
     pub rocks_any: usize,
     pub edges_any: usize,
@@ -359,6 +442,8 @@ pub struct TraverseTally {
     pub hazard_cells: usize,
     pub cells_listed: usize,
     pub cells_true: usize,
+    pub cells_beside: usize,
+    pub cells_falling: usize,
 }
 
 /// Rocks this much above h_max must all be found.
@@ -382,12 +467,18 @@ impl TraverseTally {
                 self.edges.0 += 1;
                 self.edges.1 += hit;
                 self.edges_any += any;
+                if o.steep {
+                    self.edges_steep.0 += 1;
+                    self.edges_steep.1 += hit;
+                }
             }
         }
         self.frames += o.frames;
         self.hazard_cells += o.hazard_cells;
         self.cells_listed += o.cells_listed;
         self.cells_true += o.cells_true;
+        self.cells_beside += o.cells_beside;
+        self.cells_falling += o.cells_falling;
     }
 
     pub fn merge(&mut self, other: &TraverseTally) {
@@ -398,12 +489,15 @@ impl TraverseTally {
         pair(&mut self.rocks_clear, other.rocks_clear);
         pair(&mut self.rocks, other.rocks);
         pair(&mut self.edges, other.edges);
+        pair(&mut self.edges_steep, other.edges_steep);
         self.rocks_any += other.rocks_any;
         self.edges_any += other.edges_any;
         self.frames += other.frames;
         self.hazard_cells += other.hazard_cells;
         self.cells_listed += other.cells_listed;
         self.cells_true += other.cells_true;
+        self.cells_beside += other.cells_beside;
+        self.cells_falling += other.cells_falling;
     }
 
     /// Hazard cells on a listed hazard or a true step, of all hazard cells.
