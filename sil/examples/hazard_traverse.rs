@@ -4,7 +4,7 @@
 //! rover is within stopping distance.
 //!
 //! Run: `cargo run --release -p sil --example hazard_traverse -- [--scenarios moon,mars]
-//! [--seeds N] [--gaze on|off] [--true-depth] [--bridge PX] [--hidden-drop M] [--frame-every S] [--only rocks|edges]
+//! [--seeds N] [--gaze on|off] [--true-depth] [--bridge PX] [--hidden-drop M] [--release-unseen] [--frame-every S] [--only rocks|edges]
 //! [--max-targets K] [--max-edges K] [--size M] [--profiles] [--json FILE]`. `--profiles` prints every drive with the
 //! true ground along its path (misses are always printed).
 
@@ -60,6 +60,7 @@ fn parse() -> Result<Args, String> {
             "--true-depth" => args.options.true_depth = true,
             "--bridge" => args.config.bridge_invalid_px = number(value()?)? as usize,
             "--hidden-drop" => args.config.hidden_drop_m = number(value()?)?,
+            "--release-unseen" => args.config.release_unseen_edges = true,
             "--frame-every" => args.options.frame_every_s = number(value()?)?,
             "--start" => args.options.start_m = number(value()?)?,
             "--only" => {
@@ -103,7 +104,7 @@ fn main() -> Result<(), String> {
     let args = parse()?;
     let o = args.options;
     println!(
-        "drive {} m/s, stopping distance {:.2} m (reaction {} s, {} m/s²), pairs every {} s from {} m, gaze {}, depth {}, bridge {} px, hidden drop {} m",
+        "drive {} m/s, stopping distance {:.2} m (reaction {} s, {} m/s²), pairs every {} s from {} m, gaze {}, depth {}, bridge {} px, hidden drop {} m, unseen edges {}",
         o.drive.speed_mps,
         o.drive.stopping_distance_m(),
         o.drive.reaction_s,
@@ -113,7 +114,8 @@ fn main() -> Result<(), String> {
         if o.gaze.is_some() { "on" } else { "off" },
         if o.true_depth { "exact" } else { "SGM" },
         args.config.bridge_invalid_px,
-        args.config.hidden_drop_m
+        args.config.hidden_drop_m,
+        if args.config.release_unseen_edges { "released" } else { "held" }
     );
     let mut total = TraverseTally::default();
     let mut per_world = Vec::new();

@@ -233,3 +233,42 @@ fn local_map_scrolls_and_low_passes() {
     assert_eq!(map.traversability_at(3.02, 0.0), Some(blended));
     assert_eq!(map.traversability_at(0.5, 0.0), None, "scrolled-in cells start unknown");
 }
+
+#[test]
+fn local_map_holds_measured_edges_and_releases_unseen_ones_on_request() {
+    let classify_with = |depth: &DepthImage, config: ObstacleConfig| {
+        let mut classifier = ObstacleClassifier::new(config).unwrap();
+        let mut labels = PixelLabels::default();
+        classifier.classify(depth, &GEOMETRY, &camera(), &mut labels);
+        (classifier, labels)
+    };
+    let edge_point = |depth: &DepthImage, labels: &PixelLabels| {
+        let points = labelled_points(depth, labels, PixelLabels::NEGATIVE_EDGE);
+        assert!(!points.is_empty());
+        (points[points.len() / 2].x, points[points.len() / 2].y)
+    };
+    // A cliff whose slope the camera measures (2.5 m), and a rim at 2.8 m whose drop only the
+    // hidden-drop rule infers from the floor seen beyond it.
+    let cliff = render(|x, _| if x < 2.5 { 0.0 } else { -100.0 });
+    let (measured, labels) = classify(&cliff);
+    let measured_at = edge_point(&cliff, &labels);
+    let rim = render(|x, _| if x < 2.8 { 0.0 } else { -1.0 });
+    let (unseen, labels) = classify_with(&rim, ObstacleConfig { hidden_drop_m: 0.15, ..ObstacleConfig::default() });
+    let unseen_at = edge_point(&rim, &labels);
+    assert!(measured.height_map().cells().iter().any(|c| c.negative_edge && c.edge_measured));
+    assert!(unseen.height_map().cells().iter().all(|c| !c.edge_measured));
+    // Then the flat ground seen over both cells, ten times at 10 Hz.
+    let (flat, _) = classify(&render(|_, _| 0.0));
+    for release in [false, true] {
+        let mut map = LocalObstacleMap::new(0.05, 200, 0.5).releasing_unseen_edges(release);
+        map.recentre(0.0, 0.0);
+        map.integrate(measured.height_map(), 0);
+        map.integrate(unseen.height_map(), 0);
+        assert!(map.is_obstacle_at(measured_at.0, measured_at.1) && map.is_obstacle_at(unseen_at.0, unseen_at.1));
+        for k in 1..=10 {
+            map.integrate(flat.height_map(), k * 100_000_000);
+        }
+        assert!(map.is_obstacle_at(measured_at.0, measured_at.1), "a measured edge is held");
+        assert_eq!(map.is_obstacle_at(unseen_at.0, unseen_at.1), !release, "release {release}");
+    }
+}

@@ -288,7 +288,8 @@ impl<'w> Traverse<'w> {
         let o = self.options;
         let model = self.world.robots[0].model();
         let stop_m = o.drive.stopping_distance_m();
-        let mut map = LocalObstacleMap::new(self.config.cell_size_m, MAP_SIDE_CELLS, MAP_TIME_CONSTANT_S);
+        let mut map = LocalObstacleMap::new(self.config.cell_size_m, MAP_SIDE_CELLS, MAP_TIME_CONSTANT_S)
+            .releasing_unseen_edges(self.config.release_unseen_edges);
         let mut policy = o.gaze.map(GazePolicy::new);
         let mounted = (0.0, o.mounted_tilt_rad);
         let hold = HeadTarget { stamp_ns: 0, pan_rad: 0.0, tilt_rad: o.mounted_tilt_rad, max_rate_radps: 1.0 };

@@ -9,7 +9,7 @@
 
 use msgs::{HAZARD_CELLS_MAX, HazardCellsMsg, HeadCommandMsg, Pose};
 use nalgebra::Isometry3;
-use vision::obstacles::{HeightMap, LocalObstacleMap};
+use vision::obstacles::{HeightMap, LocalObstacleMap, ObstacleConfig};
 
 use super::gaze::{GazeOptions, GazePolicy};
 use super::{Message, NodeError, Outbox};
@@ -61,9 +61,11 @@ pub struct Surroundings {
 }
 
 impl Surroundings {
-    pub fn new(cell_size_m: f64, gaze: Option<GazeOptions>) -> Self {
+    pub fn new(obstacles: &ObstacleConfig, gaze: Option<GazeOptions>) -> Self {
+        let cell_size_m = obstacles.cell_size_m;
         Surroundings {
-            map: LocalObstacleMap::new(cell_size_m, MAP_SIDE_CELLS, MAP_TIME_CONSTANT_S),
+            map: LocalObstacleMap::new(cell_size_m, MAP_SIDE_CELLS, MAP_TIME_CONSTANT_S)
+                .releasing_unseen_edges(obstacles.release_unseen_edges),
             gaze: gaze.map(GazePolicy::new),
             motion: None,
             body: None,

@@ -245,7 +245,7 @@ impl VisionNode {
             classifier,
             labels: PixelLabels::default(),
             markers,
-            surroundings: Surroundings::new(options.obstacles.cell_size_m, options.gaze),
+            surroundings: Surroundings::new(&options.obstacles, options.gaze),
             pending_capture_ns: None,
             latest: None,
             frame_id: None,

@@ -92,6 +92,10 @@ pub struct ObstacleConfig {
     /// more than this much ground (horizontally, up to the next ground seen) is an edge: a gap
     /// the wheel would cross blind (a wheel's diameter, 0.3 m).
     pub max_unseen_gap_m: f64,
+    /// In the rolling local map: edges that only the hidden-drop or unseen-gap rules marked are
+    /// low-passed again once a view sees the cell without an edge; measured edges stay held
+    /// ([`super::LocalObstacleMap::releasing_unseen_edges`]).
+    pub release_unseen_edges: bool,
 }
 
 impl Default for ObstacleConfig {
@@ -112,6 +116,7 @@ impl Default for ObstacleConfig {
             bridge_invalid_px: 0,
             hidden_drop_m: 0.0,
             max_unseen_gap_m: 0.3,
+            release_unseen_edges: false,
         }
     }
 }

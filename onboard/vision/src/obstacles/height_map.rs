@@ -28,6 +28,9 @@ pub struct HeightCell {
     pub step: bool,
     /// A negative-edge top point lies in this cell.
     pub negative_edge: bool,
+    /// One of them from the measured-slope rule (the thesis's); otherwise only the hidden-drop
+    /// or unseen-gap rules marked it, for ground they did not see.
+    pub edge_measured: bool,
 }
 
 impl HeightCell {
@@ -40,6 +43,7 @@ impl HeightCell {
         traversability: 0.0,
         step: false,
         negative_edge: false,
+        edge_measured: false,
     };
 
     pub fn is_known(&self) -> bool {
@@ -126,9 +130,10 @@ impl HeightMap {
         self.cells[index].points += 1;
     }
 
-    pub(crate) fn mark_negative_edge(&mut self, index: usize, traversability: f32) {
+    pub(crate) fn mark_negative_edge(&mut self, index: usize, traversability: f32, measured: bool) {
         let cell = &mut self.cells[index];
         cell.negative_edge = true;
+        cell.edge_measured |= measured;
         cell.traversability = cell.traversability.max(traversability);
     }
 

@@ -97,7 +97,8 @@ pub struct ObstacleClassifier {
     /// Per column: the farthest horizontal reach (less 2σ) seen so far, walking upwards.
     column_reach_m: Vec<f64>,
     /// Negative-edge tops of this image: (pixel, cell, traversability).
-    edge_tops: Vec<(usize, Option<usize>, f32)>,
+    /// (pixel, cell, traversability, from the measured-slope rule).
+    edge_tops: Vec<(usize, Option<usize>, f32, bool)>,
     /// Per pixel: 1 + index into `edge_tops` (0 = none); scratch of the support test.
     edge_index: Vec<u32>,
     /// Per edge top: kept after the support test; and the flood-fill stack.
@@ -229,7 +230,7 @@ impl ObstacleClassifier {
                 }
                 let steep = negative_edges::test_pair(&pixel, &below.pixel, cfg.edge_jump_m)
                     .filter(|&(_, s_min)| s_min > max_slope)
-                    .map(|(top, s_min)| (top, s_min / max_slope));
+                    .map(|(top, s_min)| (top, s_min / max_slope, true));
                 let verdict = steep.or_else(|| {
                     let min_drop = |far_depth_m: f32| {
                         cfg.max_step_m.max(cfg.hidden_drop_m) + model.depth_error_m(f64::from(far_depth_m))
@@ -239,16 +240,16 @@ impl ObstacleClassifier {
                             negative_edges::hidden_drop(&pixel, &below.pixel, cfg.edge_jump_m, [t.x, t.y], min_drop)
                         })
                         .flatten()
-                        .map(|drop| (Top::Lower, drop / cfg.max_step_m))
+                        .map(|drop| (Top::Lower, drop / cfg.max_step_m, false))
                 });
                 let verdict = verdict.or_else(|| {
                     (below.gap_px > 0)
                         .then(|| negative_edges::unseen_gap(&pixel, &below.pixel, [t.x, t.y]))
                         .flatten()
                         .filter(|&gap_m| gap_m > cfg.max_unseen_gap_m)
-                        .map(|gap_m| (Top::Lower, gap_m / cfg.max_unseen_gap_m))
+                        .map(|gap_m| (Top::Lower, gap_m / cfg.max_unseen_gap_m, false))
                 });
-                let Some((top, traversability)) = verdict else {
+                let Some((top, traversability, measured)) = verdict else {
                     continue;
                 };
                 let (top_pixel, top_point) = match top {
@@ -259,7 +260,12 @@ impl ObstacleClassifier {
                     && depth_m <= max_depth_m
                 {
                     let traversability = traversability.min(f64::from(f32::MAX)) as f32;
-                    self.edge_tops.push((top_pixel, self.map.index_of(p_local[0], p_local[1]), traversability));
+                    self.edge_tops.push((
+                        top_pixel,
+                        self.map.index_of(p_local[0], p_local[1]),
+                        traversability,
+                        measured,
+                    ));
                 }
             }
         }
@@ -278,10 +284,12 @@ impl ObstacleClassifier {
         }
         stats.known_cells = self.map.cells().iter().filter(|c| c.is_known()).count();
         self.support_edges(w, n);
-        for (&(pixel, cell, traversability), _) in self.edge_tops.iter().zip(&self.edge_keep).filter(|(_, k)| **k) {
+        for (&(pixel, cell, traversability, measured), _) in
+            self.edge_tops.iter().zip(&self.edge_keep).filter(|(_, k)| **k)
+        {
             labels.flags[pixel] |= PixelLabels::NEGATIVE_EDGE | PixelLabels::OBSTACLE;
             if let Some(cell) = cell {
-                self.map.mark_negative_edge(cell, traversability);
+                self.map.mark_negative_edge(cell, traversability, measured);
             }
         }
         stats.negative_edge_pixels = self.edge_keep.iter().filter(|&&k| k).count();
@@ -308,7 +316,7 @@ impl ObstacleClassifier {
         self.edge_keep.resize(self.edge_tops.len(), false);
         self.edge_index.clear();
         self.edge_index.resize(n, 0);
-        for (k, &(pixel, _, _)) in self.edge_tops.iter().enumerate() {
+        for (k, &(pixel, ..)) in self.edge_tops.iter().enumerate() {
             self.edge_index[pixel] = k as u32 + 1;
         }
         let visited = &mut self.edge_visited;
