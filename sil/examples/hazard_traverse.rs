@@ -4,7 +4,7 @@
 //! rover is within stopping distance.
 //!
 //! Run: `cargo run --release -p sil --example hazard_traverse -- [--scenarios moon,mars]
-//! [--seeds N] [--gaze on|off] [--true-depth] [--bridge PX] [--hidden-drop M] [--release-unseen] [--frame-every S] [--only rocks|edges]
+//! [--seeds N] [--first-seed K] [--gaze on|off] [--true-depth] [--bridge PX] [--hidden-drop M] [--release-unseen] [--frame-every S] [--only rocks|edges]
 //! [--max-targets K] [--max-edges K] [--size M] [--profiles] [--json FILE]`. `--profiles` prints every drive with the
 //! true ground along its path (misses are always printed).
 
@@ -17,6 +17,8 @@ use vision::obstacles::ObstacleConfig;
 struct Args {
     scenarios: Vec<String>,
     seeds: u64,
+    /// Seeds `first_seed ..= first_seed + seeds - 1`.
+    first_seed: u64,
     options: TraverseOptions,
     config: ObstacleConfig,
     max_targets: Option<usize>,
@@ -34,6 +36,7 @@ fn parse() -> Result<Args, String> {
     let mut args = Args {
         scenarios: vec!["moon".into(), "mars".into()],
         seeds: 5,
+        first_seed: 1,
         options: TraverseOptions::default(),
         config: ObstacleConfig::default(),
         max_targets: None,
@@ -50,6 +53,7 @@ fn parse() -> Result<Args, String> {
         match flag.as_str() {
             "--scenarios" => args.scenarios = value()?.split(',').map(str::to_owned).collect(),
             "--seeds" => args.seeds = number(value()?)? as u64,
+            "--first-seed" => args.first_seed = number(value()?)? as u64,
             "--gaze" => {
                 args.options.gaze = match value()?.as_str() {
                     "on" => Some(onboard::nodes::gaze::GazeOptions::lru()),
@@ -122,7 +126,7 @@ fn main() -> Result<(), String> {
     let mut misses = Vec::new();
     for scenario in &args.scenarios {
         let mut scenario_total = TraverseTally::default();
-        for seed in 1..=args.seeds {
+        for seed in args.first_seed..args.first_seed + args.seeds {
             let started = std::time::Instant::now();
             let world = preset_world(scenario, seed, args.size_m).map_err(|e| e.to_string())?;
             let all = Truth::of(&world, args.config.max_step_m);
