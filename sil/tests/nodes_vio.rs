@@ -175,7 +175,8 @@ fn run_nodes(world: &Arc<World>, robot: usize, vio: &VioOptions, vision_options:
     let calibration = driver.stereo_calibration().unwrap();
     let mut vision = VisionNode::new(&calibration, vision_options).unwrap();
     let mut filter = FilterNode::new(FilterNodeOptions::from_vio(vio));
-    assert!(driver.subscriptions().is_empty());
+    // The driver hears only head commands, and nothing here sends any (no gaze policy).
+    assert_eq!(driver.subscriptions(), &[Topic::HeadCommand]);
     let mut observer = Observer { switch_distance_m: Some(SWITCH_DISTANCE_M), ..Observer::default() };
     let mut queue = Queue::default();
     let mut now_ns = 0;
