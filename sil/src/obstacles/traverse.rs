@@ -32,6 +32,7 @@ use vision::obstacles::{LocalObstacleMap, ObstacleClassifier, ObstacleConfig, Pi
 use vision::{DepthPipeline, SpeckleFilter, depth_sgm_config};
 
 use super::evaluator::stereo_pipeline;
+use super::truth::ground_falls;
 use super::viewpoints::{body_pose, next_unit, targets, view_on_terrain};
 use super::{Aim, EvaluationError, MATCHING, Truth};
 
@@ -190,12 +191,18 @@ pub fn traverse_paths(
                 let cam_xy = [body[0] + c * cam.x - s * cam.y, body[1] + s * cam.x + c * cam.y];
                 !free.is_blocked(body) && view_on_terrain(world, cam_xy, yaw)
             });
-            let profile = path.profile_m(world, config.max_slope_rad);
-            path.steep = aim == Aim::Edge && profile.steep_drop_m >= options.edge_drop_m;
-            if ok && (aim == Aim::Rock || profile.drop_m >= options.edge_drop_m) {
-                out.push(path);
-                break;
+            if !ok {
+                continue;
             }
+            if aim == Aim::Edge {
+                let profile = path.profile_m(world, config.max_slope_rad);
+                if profile.drop_m < options.edge_drop_m {
+                    continue;
+                }
+                path.steep = profile.steep_drop_m >= options.edge_drop_m;
+            }
+            out.push(path);
+            break;
         }
     }
     out
@@ -373,16 +380,7 @@ impl<'w> Traverse<'w> {
                 .map(|o| (o.centre_m - c).norm() - o.radius_m)
                 .fold(f64::INFINITY, f64::min)
         };
-        let falling = |c: Point2<f64>| {
-            let Some(top) = hf.height_at(c.x, c.y) else { return false };
-            (0..16).any(|k| {
-                let (s, co) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
-                (1..=20).any(|i| {
-                    let d = 0.05 * i as f64;
-                    hf.height_at(c.x + co * d, c.y + s * d).is_some_and(|z| top - z > self.config.max_step_m)
-                })
-            })
-        };
+        let falling = |c: Point2<f64>| ground_falls(self.world, c, |drop_m, _| drop_m > self.config.max_step_m);
         let half = (self.config.window_cells as i64 - 1) / 2;
         let high = self.config.window_cells as i64 - 1 - half;
         let true_step = |i: i64, j: i64| {

@@ -63,18 +63,7 @@ impl Truth {
     /// Keeps only the edge discs where the true ground falls at least `min_drop_m` below the
     /// disc's centre within 1 m in some direction (the "≥ 0.3 m drop" sections).
     pub fn keep_drops(&mut self, world: &World, min_drop_m: f64) {
-        let hf = &world.terrain.heightfield;
-        let drops = |p: &Point2<f64>| {
-            let Some(top) = hf.height_at(p.x, p.y) else { return false };
-            (0..16).any(|k| {
-                let (s, c) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
-                (1..=20).any(|i| {
-                    let d = 0.05 * i as f64;
-                    hf.height_at(p.x + c * d, p.y + s * d).is_some_and(|z| top - z >= min_drop_m)
-                })
-            })
-        };
-        self.edges.retain(|o| drops(&o.centre_m));
+        self.edges.retain(|o| ground_falls(world, o.centre_m, |drop_m, _| drop_m >= min_drop_m));
         let edges = &self.edges;
         self.edge_targets.retain(|t| edges.iter().any(|o| (o.centre_m - t).norm() <= 1e-9));
     }
@@ -84,22 +73,27 @@ impl Truth {
     /// centre): the cliffs the rover can neither step nor drive down. The sim's crater-edge rule
     /// (0.3 m within 1 m of the crest, 17°) also lists rims the slope limit lets the rover descend.
     pub fn keep_steep_edges(&mut self, world: &World, max_step_m: f64, max_slope_rad: f64) {
-        let hf = &world.terrain.heightfield;
         let slope = max_slope_rad.tan();
-        let steep = |p: &Point2<f64>| {
-            let Some(top) = hf.height_at(p.x, p.y) else { return false };
-            (0..16).any(|k| {
-                let (s, c) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
-                (1..=20).any(|i| {
-                    let d = 0.05 * i as f64;
-                    hf.height_at(p.x + c * d, p.y + s * d).is_some_and(|z| top - z > max_step_m && top - z > slope * d)
-                })
-            })
-        };
-        self.edges.retain(|o| steep(&o.centre_m));
+        self.edges.retain(|o| {
+            ground_falls(world, o.centre_m, |drop_m, distance_m| drop_m > max_step_m && drop_m > slope * distance_m)
+        });
         let edges = &self.edges;
         self.edge_targets.retain(|t| edges.iter().any(|o| (o.centre_m - t).norm() <= 1e-9));
     }
+}
+
+/// Whether the true ground, sampled every 0.05 m out to 1 m in 16 directions from `p`, falls
+/// below `p` somewhere by a drop `falls(drop_m, distance_m)` accepts.
+pub(super) fn ground_falls(world: &World, p: Point2<f64>, falls: impl Fn(f64, f64) -> bool) -> bool {
+    let hf = &world.terrain.heightfield;
+    let Some(top) = hf.height_at(p.x, p.y) else { return false };
+    (0..16).any(|k| {
+        let (s, c) = (k as f64 * std::f64::consts::TAU / 16.0).sin_cos();
+        (1..=20).any(|i| {
+            let d = 0.05 * i as f64;
+            hf.height_at(p.x + c * d, p.y + s * d).is_some_and(|z| falls(top - z, d))
+        })
+    })
 }
 
 /// The Moon preset's world for `seed` on a square of `size_m`.
